@@ -1,0 +1,92 @@
+"""The ``softarm`` command line: one entry point, one subcommand per job.
+
+Each subcommand's implementation is imported only when it runs, so ``softarm rig check``
+never loads MuJoCo and ``softarm --help`` stays fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# subcommand -> (module, function); the function takes the parsed arguments, returns an exit code.
+_HANDLERS = {
+    "run": ("bench.run", "run_command"),
+    "report": ("bench.report", "report_command"),
+    "replay": ("bench.replay", "replay_command"),
+    "study": ("bench.studies", "study_command"),
+    "calibrate": ("bench.calibrate", "calibrate_command"),
+    "rig": ("bench.rig_check", "rig_command"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="softarm",
+        description="Stereo centerline estimation of a three-section soft arm, on its digital twin or the rig.",
+        epilog="Example: softarm run --frames 60   (a quick run of the paper's bending experiment on the twin)",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    def add(name: str, help_: str, example: str) -> argparse.ArgumentParser:
+        return sub.add_parser(name, help=help_, description=f"Example: {example}\n\n{help_}",
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+
+    run = add("run", "Run an experiment: drive the valves, estimate every frame, score and record.",
+              "softarm run --frames 60 --out runs/quick")
+    run.add_argument("--config", help="bench config (TOML); default models/bench.toml")
+    run.add_argument("--backend", choices=("sim", "rig"), help="override the config's backend")
+    run.add_argument("--mode", choices=("default", "paper"), help="estimator mode (overrides the config)")
+    run.add_argument("--compare", action="store_true", help="also run the paper mode on every frame and compare")
+    run.add_argument("--frames", type=int, help="spread N frames over the whole experiment (quick, coarse run)")
+    run.add_argument("--out", help="run folder; default runs/<timestamp>")
+    run.add_argument("--no-report", action="store_true", help="skip the plots and video at the end")
+
+    report = add("report", "Write plots, overlay video and a markdown summary for a run folder.",
+                 "softarm report runs/2026-11-22_101500")
+    report.add_argument("run_dir", metavar="RUN")
+
+    replay = add("replay", "Re-run an estimator configuration on a recorded run and score it again.",
+                 "softarm replay runs/2026-11-22_101500 --mode paper")
+    replay.add_argument("run_dir", metavar="RUN")
+    replay.add_argument("--mode", choices=("default", "paper"))
+    replay.add_argument("--centerline", choices=("som", "competitive", "kmeans++", "thinning", "skeleton"),
+                        help="2D centerline stage to use")
+    replay.add_argument("--out", help="output folder; default RUN/replay_<timestamp>")
+
+    study = add("study", "Regenerate the paper's SOM parameter study or the centerline comparison.",
+                "softarm study som --out runs/som_study")
+    study.add_argument("which", choices=("som", "compare"))
+    study.add_argument("--config", help="bench config (TOML); default models/bench.toml")
+    study.add_argument("--frames", type=int, help="number of twin frames to study")
+    study.add_argument("--out", help="output folder; default runs/study_<which>_<timestamp>")
+
+    calibrate = add("calibrate", "Calibrate the stereo camera from checkerboard views and write a calibration file.",
+                    "softarm calibrate --out calib.toml")
+    calibrate.add_argument("--config", help="bench config (TOML); default models/bench.toml")
+    calibrate.add_argument("--backend", choices=("sim", "rig"), help="override the config's backend")
+    calibrate.add_argument("--out", help="calibration file to write (TOML)")
+    calibrate.add_argument("--views", type=int, help="number of board views to use")
+
+    rig = add("rig", "Check the physical rig's devices without moving anything.", "softarm rig check")
+    rig.add_argument("action", choices=("check",))
+    rig.add_argument("--config", help="bench config (TOML); default models/bench.toml")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    module_name, function_name = _HANDLERS[args.command]
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as e:
+        if e.name != module_name:
+            raise
+        print(f"softarm {args.command}: not built yet in this version", file=sys.stderr)
+        return 2
+    return int(getattr(module, function_name)(args) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,13 @@
+"""Errors raised by devices; each message says what failed and what to check."""
+
+
+class DeviceError(RuntimeError):
+    """A device could not be opened, configured or used."""
+
+
+class NotConnectedError(DeviceError):
+    """A device was used before ``connect()`` or after ``close()``."""
+
+
+class LinkLostError(DeviceError, ConnectionError):
+    """A device stopped answering; valves have been vented where possible."""
