@@ -1,0 +1,588 @@
+"""Offscreen stereo rendering of the arm: raw (distorted, noisy) images like a real ZED.
+
+Each eye is rendered by pyrender (OpenGL through EGL, on the CPU with Mesa llvmpipe) as an
+ideal pinhole camera on a canvas large enough to hold every raw pixel's ray; lens distortion
+is then applied by ``cv2.remap`` with maps computed once (for every raw pixel, where its ray
+lands on the ideal canvas, from ``cv2.undistortPoints``), followed by optical blur, exposure
+gain and sensor noise. The same :class:`~estimator.StereoCalibration` that builds the maps is
+the one the twin exposes, so projecting with it finds what was drawn.
+
+Conventions: OpenCV pixel centres are at integer coordinates; OpenGL's are at i + 0.5, so the
+pinhole principal point handed to pyrender is the OpenCV one plus half a pixel. The ideal canvas
+is read bottom-up (OpenGL's row order) and the maps absorb the flip. Colours are handed to
+OpenGL in BGR order (the lights are white, so channels never mix) and the images come out BGR.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+os.environ.setdefault("PYOPENGL_PLATFORM", "egl")  # must precede the first import of PyOpenGL
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+from scipy.special import ndtri  # noqa: E402
+
+from twin.rig import SensorModel, StereoRig  # noqa: E402
+from twin.shape import ArmShape  # noqa: E402
+
+_SIDES = ("left", "right")
+_ZNEAR_M, _ZFAR_M = 0.02, 20.0
+_CANVAS_MARGIN_PX = 3
+# undistortPoints iterates; its default 5 iterations leave ~0.1 px at the corners of a ZED.
+_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 60, 1e-12)
+_GAMMA = 2.2  # pyrender's shader writes colour ** (1 / 2.2)
+_DIELECTRIC_F0 = 0.04  # pyrender's diffuse colour is base * (1 - 0.04)
+
+EGL_HINT = ("install the EGL and Mesa OpenGL runtime, e.g. on Debian/Ubuntu "
+            "`apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri libgles2` (Mesa's llvmpipe renders on "
+            "the CPU), and keep PYOPENGL_PLATFORM=egl (set by twin before pyrender is imported)")
+
+
+class RenderBackendError(RuntimeError):
+    """Offscreen OpenGL rendering is not available; the message names what to install."""
+
+
+def _gl():
+    """Import pyrender and PyOpenGL's GL functions, translating a missing GL stack."""
+    if os.environ.get("PYOPENGL_PLATFORM") != "egl":
+        raise RenderBackendError(
+            f"PYOPENGL_PLATFORM is {os.environ.get('PYOPENGL_PLATFORM')!r}; the twin renders offscreen through "
+            "EGL: set PYOPENGL_PLATFORM=egl before anything imports pyrender or OpenGL")
+    try:
+        import pyrender
+        from OpenGL import GL
+    except Exception as e:  # ImportError, OSError from ctypes, AttributeError from PyOpenGL's loader
+        raise RenderBackendError(f"cannot load OpenGL through EGL ({type(e).__name__}: {e}); {EGL_HINT}") from e
+    return pyrender, GL
+
+
+@dataclass(frozen=True, eq=False)
+class StereoImages:
+    """One rendered raw stereo pair.
+
+    Attributes:
+        left, right: (H, W, 3) uint8 BGR raw images (distorted, blurred, noisy as configured).
+        depth_left_m: (H, W) float32, metres along the left optical axis (camera z) of the
+            surface seen at each RAW left pixel; ``inf`` where only background is seen.
+            ``None`` when depth was not requested.
+    """
+
+    left: np.ndarray
+    right: np.ndarray
+    depth_left_m: np.ndarray | None
+
+
+@dataclass(frozen=True, eq=False)
+class _Eye:
+    K_canvas: np.ndarray  # 3x3 ideal pinhole of the canvas, OpenCV conventions (top-down rows)
+    map1: np.ndarray  # fixed-point remap maps: raw pixel -> bottom-up canvas position
+    map2: np.ndarray
+    residual_px: float  # worst round-trip error of the maps (raw -> ray -> raw), pixels
+
+
+def _eye_rays(K: np.ndarray, dist: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) normalised undistorted coordinates x/z, y/z of the ray through every raw pixel."""
+    w, h = size
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    raw = np.stack([u.ravel(), v.ravel()], axis=1)
+    xy = cv2.undistortPoints(raw.reshape(-1, 1, 2), K, dist.reshape(1, -1), criteria=_UNDISTORT_CRITERIA)
+    xy = xy.reshape(h, w, 2)
+    return xy[..., 0], xy[..., 1]
+
+
+def _noise_table(std_dn: float) -> np.ndarray:
+    """256 equiprobable Gaussian quantiles scaled to standard deviation ``std_dn``.
+
+    Indexing it with uniform random bytes (``cv2.LUT``) draws Gaussian noise about four times
+    faster than ``numpy``'s normal generator; 256 levels are plenty for 8-bit images.
+    """
+    q = ndtri((np.arange(256) + 0.5) / 256.0)
+    q = q / np.sqrt(np.mean(q**2))
+    return (q * std_dn).astype(np.float32).reshape(1, 256)
+
+
+def rotation_minimising_frames(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Tangents and rotation-minimising normal/binormal along a polyline (double reflection).
+
+    Wang, Juettler, Zheng, Liu (2008), "Computation of rotation minimizing frames", algorithm 1.
+
+    Args:
+        points: (N, 3), N >= 2, consecutive points distinct.
+
+    Returns:
+        t, n, b: three (N, 3) arrays of unit vectors; (n, b, t) is right-handed at every point.
+    """
+    p = np.asarray(points, dtype=np.float64)
+    seg = np.diff(p, axis=0)
+    seg_len = np.linalg.norm(seg, axis=1)
+    if np.any(seg_len <= 1e-12):
+        raise ValueError("points: consecutive backbone points coincide")
+    seg /= seg_len[:, None]
+    t = np.empty_like(p)
+    t[0], t[-1] = seg[0], seg[-1]
+    t[1:-1] = seg[1:] + seg[:-1]
+    t /= np.linalg.norm(t, axis=1)[:, None]
+    # First normal: the world axis least aligned with the first tangent, made perpendicular.
+    a = np.eye(3)[np.argmin(np.abs(t[0]))]
+    r = a - np.dot(a, t[0]) * t[0]
+    r /= np.linalg.norm(r)
+    n = np.empty_like(p)
+    n[0] = r
+    for i in range(len(p) - 1):
+        v1 = p[i + 1] - p[i]
+        c1 = float(v1 @ v1)
+        r_l = n[i] - (2.0 / c1) * float(v1 @ n[i]) * v1
+        t_l = t[i] - (2.0 / c1) * float(v1 @ t[i]) * v1
+        v2 = t[i + 1] - t_l
+        c2 = float(v2 @ v2)
+        n[i + 1] = r_l if c2 < 1e-30 else r_l - (2.0 / c2) * float(v2 @ r_l) * v2
+    # Remove round-off drift from orthogonality.
+    n -= np.sum(n * t, axis=1)[:, None] * t
+    n /= np.linalg.norm(n, axis=1)[:, None]
+    b = np.cross(t, n)
+    return t, n, b
+
+
+def tube_surface(points: np.ndarray, radius: np.ndarray, sides: int,
+                 caps: tuple[bool, bool] = (True, True)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A smooth tube swept along a backbone, with flat end caps.
+
+    Args:
+        points: (N, 3) backbone, metres.
+        radius: (N,) tube radius at each point, metres.
+        sides: vertices around each ring.
+        caps: whether to close the (start, end) of the tube with a flat disc.
+
+    Returns:
+        positions (V, 3) float32, normals (V, 3) float32 (outward, unit), faces (F, 3) uint32
+        with counter-clockwise winding seen from outside.
+    """
+    p = np.asarray(points, dtype=np.float64)
+    rad = np.asarray(radius, dtype=np.float64)
+    t, n, b = rotation_minimising_frames(p)
+    theta = np.linspace(0.0, 2.0 * math.pi, sides, endpoint=False)
+    cos, sin = np.cos(theta), np.sin(theta)
+    radial = cos[None, :, None] * n[:, None, :] + sin[None, :, None] * b[:, None, :]  # (N, S, 3)
+    ring = p[:, None, :] + rad[:, None, None] * radial
+    # The surface normal tilts against the tangent where the radius changes: n ~ radial - r'(s) t.
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+    drds = np.gradient(rad, s) if len(p) > 2 else np.full(len(p), (rad[-1] - rad[0]) / s[-1])
+    normal = radial - drds[:, None, None] * t[:, None, :]
+    normal /= np.linalg.norm(normal, axis=2)[..., None]
+    N, S = len(p), sides
+    positions = [ring.reshape(-1, 3)]
+    normals = [normal.reshape(-1, 3)]
+    i = np.arange(N - 1)[:, None]
+    j = np.arange(S)[None, :]
+    a0 = i * S + j
+    a1 = i * S + (j + 1) % S
+    b0 = a0 + S
+    b1 = a1 + S
+    # (n, b, t) right-handed: going around by +theta and along +t, the quad (a0, a1, b1, b0)
+    # has its outward normal along radial when wound a0 -> a1 -> b1.
+    faces = [np.stack([a0, a1, b1], -1).reshape(-1, 3), np.stack([a0, b1, b0], -1).reshape(-1, 3)]
+    count = N * S
+    for end, keep in zip((0, N - 1), caps, strict=True):
+        if not keep:
+            continue
+        outward = -t[end] if end == 0 else t[end]
+        centre = count
+        positions.append(np.vstack([p[end][None], ring[end]]))
+        normals.append(np.repeat(outward[None], S + 1, axis=0))
+        rim = centre + 1 + np.arange(S)
+        nxt = centre + 1 + (np.arange(S) + 1) % S
+        tri = np.stack([np.full(S, centre), nxt, rim], -1) if end == 0 else np.stack([np.full(S, centre), rim, nxt], -1)
+        faces.append(tri)
+        count += S + 1
+    return (np.vstack(positions).astype(np.float32), np.vstack(normals).astype(np.float32),
+            np.vstack(faces).astype(np.uint32))
+
+
+def _linear(rgb_display: Sequence[float]) -> np.ndarray:
+    """Display RGB -> linear BGR for pyrender's shader (which writes linear ** (1 / 2.2))."""
+    return np.asarray(rgb_display, dtype=np.float64)[::-1] ** _GAMMA
+
+
+def _pose_with_z(z_axis: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    z = np.asarray(z_axis, float) / np.linalg.norm(z_axis)
+    a = np.eye(3)[np.argmin(np.abs(z))]
+    x = np.cross(a, z)
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, :3] = np.column_stack([x, np.cross(z, x), z])
+    T[:3, 3] = origin
+    return T
+
+
+@dataclass(frozen=True, eq=False)
+class Prop:
+    """An extra object in the scene (e.g. a calibration board): one or more triangle meshes.
+
+    Attributes:
+        parts: tuples (positions (V, 3), normals (V, 3), faces (F, 3), display RGB colour) in the
+            prop's own frame, metres.
+        T_world_prop: (4, 4) pose of the prop in the world.
+    """
+
+    parts: tuple[tuple[np.ndarray, np.ndarray, np.ndarray, tuple[float, float, float]], ...]
+    T_world_prop: np.ndarray
+
+
+class StereoRenderer:
+    """Render raw stereo pairs of an :class:`ArmShape` (and optional props) seen by a :class:`StereoRig`.
+
+    One OpenGL context, scene and canvas are reused; per frame only the tube mesh is rebuilt
+    and the plates re-posed.
+
+    Args:
+        rig: the cameras, their calibration, pose and the scene's appearance.
+        seed: seed of the sensor-noise generator (frames are reproducible for a given seed).
+        tube_sides: vertices around the tube (48 keeps the polygon within 0.05 px of a circle).
+        sensor: overrides ``rig.sensor`` (e.g. noise-free renders for measurements).
+        fast_readback: draw and read only the rectangle holding the objects (scissor test) and
+            read depth only where needed; ``False`` uses pyrender's own full read-back (slower,
+            kept as a reference and a fallback).
+
+    Raises:
+        RenderBackendError: no offscreen OpenGL (EGL) is available; the message names the
+            system packages to install.
+    """
+
+    def __init__(self, rig: StereoRig, *, seed: int = 0, tube_sides: int = 48,
+                 sensor: SensorModel | None = None, fast_readback: bool = True) -> None:
+        if tube_sides < 8:
+            raise ValueError(f"tube_sides: expected at least 8, got {tube_sides}")
+        self.rig = rig
+        self.sensor = rig.sensor if sensor is None else sensor
+        self.tube_sides = int(tube_sides)
+        self._rng = np.random.default_rng(seed)
+        self._noise_lut = _noise_table(self.sensor.noise_std_dn)
+        self.timings_s: dict[str, float] = {}
+        self._pyrender, self._GL = _gl()
+        pyrender = self._pyrender
+        calib = rig.calibration
+
+        # --- distortion maps and the ideal canvas (once) ---------------------------------
+        per_eye = {}
+        lo, hi = np.full(2, np.inf), np.full(2, -np.inf)
+        for side in _SIDES:
+            K = calib.K(side)
+            x, y = _eye_rays(K, calib.dist(side), calib.image_size)
+            per_eye[side] = (x, y)
+            u = K[0, 0] * x + K[0, 1] * y + K[0, 2]
+            v = K[1, 1] * y + K[1, 2]
+            lo = np.minimum(lo, [u.min() - K[0, 2], v.min() - K[1, 2]])
+            hi = np.maximum(hi, [u.max() - K[0, 2], v.max() - K[1, 2]])
+        self._eyes: dict[str, _Eye] = {}
+        self._canvas_size = (0, 0)
+        self._build_canvas(per_eye, lo, hi)
+
+        # --- the scene --------------------------------------------------------------------
+        look = rig.appearance
+        self._scene = pyrender.Scene(bg_color=np.append(np.asarray(look.background_rgb)[::-1], 1.0),
+                                     ambient_light=np.full(3, look.ambient))
+        self._camera_nodes = {}
+        for side in _SIDES:
+            K = self._eyes[side].K_canvas
+            camera = pyrender.IntrinsicsCamera(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2] + 0.5, cy=K[1, 2] + 0.5,
+                                               znear=_ZNEAR_M, zfar=_ZFAR_M)
+            self._camera_nodes[side] = self._scene.add(camera, pose=rig.T_world_cam_gl(side), name=f"cam_{side}")
+        # pyrender's Lambert term is radiance * 0.96 * cos / pi: scale so a surface facing the
+        # light gets ``directional`` of the full linear brightness.
+        intensity = look.directional * math.pi / (1.0 - _DIELECTRIC_F0)
+        light = pyrender.DirectionalLight(color=np.ones(3), intensity=intensity)
+        self._scene.add(light, pose=_pose_with_z(-np.asarray(look.light_direction_world), np.zeros(3)))
+        self._arm_material = self._material(look.arm_rgb)
+        self._plate_material = self._material(look.plate_rgb)
+        self._tube_node = None
+        self._plate_nodes: list = []
+        self._plate_key: tuple | None = None
+        self._prop_nodes: list = []
+        self._arm_vertices: list[np.ndarray] = []
+        self._prop_vertices: list[np.ndarray] = []
+        try:
+            self._renderer = pyrender.OffscreenRenderer(*self._canvas_size)
+        except Exception as e:  # EGL missing devices/drivers surface as many exception types
+            raise RenderBackendError(f"cannot create an offscreen EGL context ({type(e).__name__}: {e}); "
+                                     f"{EGL_HINT}") from e
+        self._fast_readback = fast_readback and all(
+            hasattr(self._renderer._renderer, a) for a in ("_main_fb", "_main_fb_ms", "_read_main_framebuffer"))
+        if self._fast_readback:
+            self._want_depth = True
+            self._rect = (0, 0, *self._canvas_size)
+            self._renderer._renderer._read_main_framebuffer = self._read_framebuffer
+            # The background everywhere outside the drawn objects' bounding box: one empty render.
+            self._set_arm(None)
+            self._canvas = {}
+            for side in _SIDES:
+                self._scene.main_camera_node = self._camera_nodes[side]
+                colour, zbuf = self._renderer.render(self._scene)
+                self._canvas[side] = [colour.copy(), zbuf.copy(), None]  # colour, depth, last rect
+            self._background_px = self._canvas["left"][0][0, 0].copy()
+
+    # --- set-up helpers ------------------------------------------------------------------------
+
+    def _build_canvas(self, per_eye: dict, lo: np.ndarray, hi: np.ndarray) -> None:
+        """One canvas size for both eyes, each eye's principal point placed to cover its rays."""
+        calib = self.rig.calibration
+        m = _CANVAS_MARGIN_PX
+        width = int(math.ceil(hi[0] - lo[0])) + 2 * m + 1
+        height = int(math.ceil(hi[1] - lo[1])) + 2 * m + 1
+        width += (-width) % 4  # GL_RGB rows stay 4-byte aligned
+        self._canvas_size = (width, height)
+        for side in _SIDES:
+            K = calib.K(side)
+            x, y = per_eye[side]
+            K_canvas = K.copy()
+            K_canvas[0, 2] = -math.floor(lo[0]) + m  # lo is relative to the principal point
+            K_canvas[1, 2] = -math.floor(lo[1]) + m
+            u = (K_canvas[0, 0] * x + K_canvas[0, 1] * y + K_canvas[0, 2]).astype(np.float32)
+            v = (K_canvas[1, 1] * y + K_canvas[1, 2]).astype(np.float32)
+            v_up = (height - 1) - v  # the canvas is read bottom-up
+            map1, map2 = cv2.convertMaps(u, v_up, cv2.CV_16SC2)
+            # Check the inversion with OpenCV's forward model on every 4th row and column and
+            # the borders (projectPoints on all 0.9 M pixels would take a second per eye).
+            w, h = calib.image_size
+            cols = np.unique(np.r_[np.arange(0, w, 4), w - 1])
+            rows = np.unique(np.r_[np.arange(0, h, 4), h - 1])
+            sub = np.ix_(rows, cols)
+            rays = np.column_stack([x[sub].ravel(), y[sub].ravel(), np.ones(x[sub].size)])
+            back, _ = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), K, calib.dist(side).reshape(1, -1))
+            grid = np.stack(np.meshgrid(cols, rows), -1).reshape(-1, 2)
+            residual = float(np.max(np.abs(back.reshape(-1, 2) - grid)))
+            if residual > 1e-3:
+                raise ValueError(f"{side} camera: the distortion cannot be inverted over the image "
+                                 f"(round-trip error {residual:.3g} px); check its dist coefficients")
+            self._eyes[side] = _Eye(K_canvas, map1, map2, residual)
+
+    def _material(self, rgb_display):
+        return self._pyrender.MetallicRoughnessMaterial(
+            baseColorFactor=np.append(_linear(rgb_display), 1.0), metallicFactor=0.0, roughnessFactor=1.0)
+
+    def _mesh(self, positions, normals, faces, material):
+        pyrender = self._pyrender
+        primitive = pyrender.Primitive(positions=positions, normals=normals, indices=faces,
+                                       material=material, mode=pyrender.constants.GLTF.TRIANGLES)
+        return pyrender.Mesh([primitive])
+
+    @property
+    def canvas_size(self) -> tuple[int, int]:
+        """(width, height) of the ideal pinhole canvas each eye is rendered on."""
+        return self._canvas_size
+
+    def canvas_K(self, side: str) -> np.ndarray:
+        """3x3 pinhole matrix of one eye's ideal canvas (OpenCV conventions, top-down rows)."""
+        return self._eyes[side].K_canvas.copy()
+
+    # --- per-frame scene updates ----------------------------------------------------------------
+
+    def _set_arm(self, shape: ArmShape | None) -> None:
+        scene = self._scene
+        if self._tube_node is not None:
+            scene.remove_node(self._tube_node)
+            self._tube_node = None
+        self._arm_vertices = []
+        if shape is None:
+            for node in self._plate_nodes:
+                node.mesh.is_visible = False
+            return
+        positions, normals, faces = tube_surface(shape.points_world, shape.radius_m, self.tube_sides)
+        self._tube_node = scene.add(self._mesh(positions, normals, faces, self._arm_material), name="arm")
+        self._arm_vertices = [positions.astype(np.float64)]
+        key = tuple((round(p.radius_m, 9), round(p.thickness_m, 9)) for p in shape.plates)
+        if key != self._plate_key:
+            for node in self._plate_nodes:
+                scene.remove_node(node)
+            self._plate_nodes = []
+            for plate in shape.plates:
+                h = plate.thickness_m / 2.0
+                disc = tube_surface(np.array([[0, 0, -h], [0, 0, h]]), np.full(2, plate.radius_m), self.tube_sides)
+                self._plate_nodes.append(scene.add(self._mesh(*disc, self._plate_material), name="plate"))
+            self._plate_key = key
+        for node, plate in zip(self._plate_nodes, shape.plates, strict=True):
+            node.mesh.is_visible = True
+            pose = _pose_with_z(plate.normal_world, plate.center_world)
+            scene.set_pose(node, pose)
+            local = node.mesh.primitives[0].positions.astype(np.float64)
+            self._arm_vertices.append(local @ pose[:3, :3].T + pose[:3, 3])
+
+    def _set_props(self, props: Sequence[Prop]) -> None:
+        for node in self._prop_nodes:
+            self._scene.remove_node(node)
+        self._prop_nodes = []
+        self._prop_vertices = []
+        for prop in props:
+            pose = np.asarray(prop.T_world_prop, float)
+            for positions, normals, faces, rgb in prop.parts:
+                mesh = self._mesh(np.asarray(positions, np.float32), np.asarray(normals, np.float32),
+                                  np.asarray(faces, np.uint32), self._material(rgb))
+                self._prop_nodes.append(self._scene.add(mesh, pose=pose))
+                self._prop_vertices.append(np.asarray(positions, np.float64) @ pose[:3, :3].T + pose[:3, 3])
+
+    # --- rendering --------------------------------------------------------------------------------
+
+    def _read_framebuffer(self, scene, flags):
+        """Replacement for pyrender's read-back: colour always, raw depth only when asked,
+        no flips or conversions (the remap maps absorb the bottom-up row order)."""
+        GL = self._GL
+        r = self._renderer._renderer
+        x, y, w, h = self._rect  # bottom-up GL window coordinates
+        GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, r._main_fb_ms)
+        GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, r._main_fb)
+        GL.glBlitFramebuffer(x, y, x + w, y + h, x, y, x + w, y + h, GL.GL_COLOR_BUFFER_BIT, GL.GL_LINEAR)
+        if self._want_depth:
+            GL.glBlitFramebuffer(x, y, x + w, y + h, x, y, x + w, y + h, GL.GL_DEPTH_BUFFER_BIT, GL.GL_NEAREST)
+        GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, r._main_fb)
+        GL.glPixelStorei(GL.GL_PACK_ALIGNMENT, 1)
+        colour = np.frombuffer(GL.glReadPixels(x, y, w, h, GL.GL_RGB, GL.GL_UNSIGNED_BYTE),
+                               dtype=np.uint8).reshape(h, w, 3)
+        depth = None
+        if self._want_depth:
+            depth = np.frombuffer(GL.glReadPixels(x, y, w, h, GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT),
+                                  dtype=np.float32).reshape(h, w)
+        return colour, depth
+
+    def _drawn_rect(self, side: str) -> tuple[int, int, int, int]:
+        """Bottom-up (x, y, w, h) canvas rectangle holding every drawn vertex of this frame.
+
+        Outside it the canvas is background, so only this rectangle is cleared, drawn and read
+        (a scissor test): it is what keeps a stereo pair within budget on a CPU rasteriser.
+        """
+        width, height = self._canvas_size
+        vertices = self._arm_vertices + self._prop_vertices
+        if not vertices:
+            return 0, 0, 1, 1
+        T = self.rig.T_world_cam(side)
+        p = (np.vstack(vertices) - T[:3, 3]) @ T[:3, :3]
+        if np.any(p[:, 2] <= _ZNEAR_M):
+            return 0, 0, width, height  # something reaches behind the camera: draw everything
+        K = self._eyes[side].K_canvas
+        u = K[0, 0] * p[:, 0] / p[:, 2] + K[0, 2]
+        v = K[1, 1] * p[:, 1] / p[:, 2] + K[1, 2]
+        pad = 4  # anti-aliasing and rounding
+        x0 = int(np.clip(math.floor(u.min()) - pad, 0, width))
+        x1 = int(np.clip(math.ceil(u.max()) + pad + 1, 0, width))
+        top = int(np.clip(math.floor(v.min()) - pad, 0, height))
+        bottom = int(np.clip(math.ceil(v.max()) + pad + 1, 0, height))
+        if x1 <= x0 or bottom <= top:
+            return 0, 0, 1, 1
+        return x0, height - bottom, x1 - x0, bottom - top
+
+    def _render_canvas(self, side: str, depth: bool) -> tuple[np.ndarray, np.ndarray | None, bool]:
+        """Render one eye's ideal canvas; returns (colour, depth, bottom_up)."""
+        self._scene.main_camera_node = self._camera_nodes[side]
+        if self._fast_readback:
+            GL = self._GL
+            self._want_depth = depth
+            rect = self._drawn_rect(side)
+            self._rect = rect
+            self._renderer._platform.make_current()
+            GL.glEnable(GL.GL_SCISSOR_TEST)
+            GL.glScissor(*rect)
+            colour, zbuf = self._renderer.render(self._scene)
+            canvas = self._canvas[side]
+            previous = canvas[2]
+            if previous is not None:  # restore the background where the last frame drew
+                px, py, pw, ph = previous
+                canvas[0][py:py + ph, px:px + pw] = self._background_px
+                canvas[1][py:py + ph, px:px + pw] = 1.0
+            x, y, w, h = rect
+            canvas[0][y:y + h, x:x + w] = colour
+            if zbuf is not None:
+                canvas[1][y:y + h, x:x + w] = zbuf
+            canvas[2] = rect
+            return canvas[0], (canvas[1] if depth else None), True
+        colour, z_m = self._renderer.render(self._scene)  # top-down, linear depth, 0 = background
+        return np.ascontiguousarray(colour), np.ascontiguousarray(z_m), False
+
+    def _to_raw(self, side: str, canvas: np.ndarray, bottom_up: bool) -> np.ndarray:
+        eye = self._eyes[side]
+        if not bottom_up:
+            canvas = np.ascontiguousarray(canvas[::-1])
+        return cv2.remap(canvas, eye.map1, eye.map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+    def _sensor(self, image: np.ndarray) -> np.ndarray:
+        s = self.sensor
+        if s.blur_sigma_px > 0:
+            image = cv2.GaussianBlur(image, (0, 0), s.blur_sigma_px)
+        if s.noise_std_dn > 0:
+            u8 = np.frombuffer(self._rng.bytes(image.size), dtype=np.uint8).reshape(image.shape)
+            noise = cv2.LUT(u8, self._noise_lut)
+            return cv2.addWeighted(image, s.exposure_gain, noise, 1.0, 0.0, dtype=cv2.CV_8U)
+        if s.exposure_gain != 1.0:
+            return cv2.convertScaleAbs(image, alpha=s.exposure_gain)
+        return image
+
+    def _depth_to_raw(self, zbuf: np.ndarray, bottom_up: bool) -> np.ndarray:
+        eye = self._eyes["left"]
+        if not bottom_up:  # pyrender's own read-back: already linear metres, 0 = background
+            z = cv2.remap(np.ascontiguousarray(zbuf[::-1]), eye.map1, eye.map2, cv2.INTER_NEAREST,
+                          borderMode=cv2.BORDER_REPLICATE)
+            z[z <= 0] = np.inf
+            return z
+        d = cv2.remap(zbuf, eye.map1, eye.map2, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+        n, f = _ZNEAR_M, _ZFAR_M
+        with np.errstate(divide="ignore"):
+            z = (2.0 * n * f) / ((f + n) - (2.0 * d - 1.0) * (f - n))
+        z[d >= 1.0] = np.inf
+        return z.astype(np.float32, copy=False)
+
+    def render(self, shape: ArmShape | None, *, depth: bool = True, props: Sequence[Prop] = ()) -> StereoImages:
+        """Render one raw stereo pair.
+
+        Args:
+            shape: the arm (``None`` renders no arm, e.g. for calibration-board views).
+            depth: also return the left depth map (in raw left pixels).
+            props: extra objects for this frame only.
+
+        Returns:
+            StereoImages with BGR uint8 raw images of ``rig.image_size`` and the left depth.
+        """
+        t0 = time.perf_counter()
+        self._set_arm(shape)
+        self._set_props(props)
+        t1 = time.perf_counter()
+        canvas_l, zbuf, up_l = self._render_canvas("left", depth)
+        t2 = time.perf_counter()
+        canvas_r, _, up_r = self._render_canvas("right", False)
+        t3 = time.perf_counter()
+        left = self._sensor(self._to_raw("left", canvas_l, up_l))
+        right = self._sensor(self._to_raw("right", canvas_r, up_r))
+        depth_m = self._depth_to_raw(zbuf, up_l) if depth else None
+        t4 = time.perf_counter()
+        if props:
+            self._set_props(())
+        self.timings_s = {"scene": t1 - t0, "gl_left": t2 - t1, "gl_right": t3 - t2, "post": t4 - t3,
+                          "total": t4 - t0}
+        return StereoImages(left, right, depth_m)
+
+    def close(self) -> None:
+        """Release the OpenGL context; closing twice is harmless."""
+        renderer, self._renderer = getattr(self, "_renderer", None), None
+        if renderer is None:
+            return
+        platform = renderer._platform
+        if not all(hasattr(platform, a) for a in ("_egl_display", "_egl_context")):
+            renderer.delete()
+            return
+        # pyrender's own delete() calls eglTerminate on the process-wide EGL display, which
+        # kills every other renderer's context; free this one's resources and context only.
+        from OpenGL import EGL
+
+        platform.make_current()
+        renderer._renderer.delete()
+        EGL.eglMakeCurrent(platform._egl_display, EGL.EGL_NO_SURFACE, EGL.EGL_NO_SURFACE, EGL.EGL_NO_CONTEXT)
+        EGL.eglDestroyContext(platform._egl_display, platform._egl_context)
+        platform._egl_context = None
+        platform._egl_display = None
+
+    def __enter__(self) -> StereoRenderer:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,333 @@
+"""The twin's stereo rig: intrinsics, distortion, extrinsics, pose in the world and appearance.
+
+One file (``models/camera.toml``) feeds both the renderer and the calibration the twin exposes,
+so the calibration a user gets is exactly the one the images were rendered with.
+
+Frames: the world is the arm's (metres, z up, origin at the arm base). Camera frames follow
+OpenCV (x right, y down, z forward). ``T_world_cam_left`` maps left-camera points to the world:
+``p_world = T[:3, :3] @ p_cam + T[:3, 3]``.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from estimator import StereoCalibration
+
+
+class ConfigFileError(ValueError):
+    """A twin configuration file is missing or malformed; the message names the file and the key."""
+
+
+# --- small TOML reading helpers shared by the twin's config files ---------------------------
+
+
+def load_toml(path: str | Path, what: str) -> dict[str, Any]:
+    """Read a TOML file or raise ConfigFileError naming it."""
+    path = Path(path)
+    try:
+        return tomllib.loads(path.read_text())
+    except FileNotFoundError as e:
+        raise ConfigFileError(f"{path}: {what} file not found") from e
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise ConfigFileError(f"{path}: not a valid TOML {what} file ({e})") from e
+
+
+class TableReader:
+    """Take typed values out of one TOML table; every error names the file and the key.
+
+    Call :meth:`done` after the last :meth:`take` so a misspelt (unknown) key is an error too.
+    """
+
+    def __init__(self, path: Path, table: dict[str, Any], section: str | None = None) -> None:
+        self.path, self.section = Path(path), section
+        self._table = table
+        self._taken: set[str] = set()
+
+    def where(self, key: str) -> str:
+        return key if self.section is None else f"[{self.section}] {key}"
+
+    def error(self, key: str, message: str) -> ConfigFileError:
+        return ConfigFileError(f"{self.path}: key {self.where(key)}: {message}")
+
+    def sub(self, key: str, *, required: bool = True) -> TableReader | None:
+        """A nested table (``[key]`` at the top level, ``[section.key]`` below)."""
+        self._taken.add(key)
+        name = key if self.section is None else f"{self.section}.{key}"
+        if key not in self._table:
+            if required:
+                raise ConfigFileError(f"{self.path}: missing table [{name}]")
+            return None
+        if not isinstance(self._table[key], dict):
+            raise ConfigFileError(f"{self.path}: key {self.where(key)}: expected a table [{name}]")
+        return TableReader(self.path, self._table[key], name)
+
+    def take(self, key: str, convert: Callable[[Any], Any], default: Any = ...) -> Any:
+        self._taken.add(key)
+        if key not in self._table:
+            if default is ...:
+                raise ConfigFileError(f"{self.path}: missing key {self.where(key)}")
+            return default
+        try:
+            return convert(self._table[key])
+        except (TypeError, ValueError) as e:
+            raise self.error(key, str(e)) from e
+
+    def done(self) -> None:
+        unknown = sorted(set(self._table) - self._taken)
+        if unknown:
+            raise ConfigFileError(f"{self.path}: unknown key {self.where(unknown[0])}"
+                                  + (f" (and {', '.join(unknown[1:])})" if len(unknown) > 1 else ""))
+
+
+def number(lo: float = -math.inf, hi: float = math.inf, *, lo_open: bool = False) -> Callable[[Any], float]:
+    """A converter for a finite number in [lo, hi] (or (lo, hi] with ``lo_open``)."""
+
+    def convert(value: Any) -> float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise TypeError(f"expected a number, got {value!r}")
+        value = float(value)
+        if not math.isfinite(value) or value > hi or value < lo or (lo_open and value == lo):
+            bound = f"({lo}, {hi}]" if lo_open else f"[{lo}, {hi}]"
+            raise ValueError(f"expected a number in {bound}, got {value!r}")
+        return value
+
+    return convert
+
+
+def integer(lo: int, hi: int) -> Callable[[Any], int]:
+    def convert(value: Any) -> int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise TypeError(f"expected an integer, got {value!r}")
+        if not lo <= value <= hi:
+            raise ValueError(f"expected an integer in [{lo}, {hi}], got {value}")
+        return int(value)
+
+    return convert
+
+
+def vector(n: int | tuple[int, ...], lo: float = -math.inf, hi: float = math.inf) -> Callable[[Any], np.ndarray]:
+    """A converter for a list of ``n`` finite numbers (``n`` may list allowed lengths)."""
+    lengths = (n,) if isinstance(n, int) else n
+
+    def convert(value: Any) -> np.ndarray:
+        if not isinstance(value, list) or any(isinstance(v, bool) or not isinstance(v, int | float) for v in value):
+            raise TypeError(f"expected a list of numbers, got {value!r}")
+        if len(value) not in lengths:
+            raise ValueError(f"expected {' or '.join(map(str, lengths))} numbers, got {len(value)}")
+        array = np.asarray(value, dtype=np.float64)
+        if not np.all(np.isfinite(array)) or np.any(array < lo) or np.any(array > hi):
+            raise ValueError(f"expected finite numbers in [{lo}, {hi}], got {value!r}")
+        return array
+
+    return convert
+
+
+# --- the rig ---------------------------------------------------------------------------------
+
+_GL_FROM_CV = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenCV camera axes -> OpenGL camera axes
+
+
+@dataclass(frozen=True)
+class Appearance:
+    """Colours (display RGB in 0..1) and lighting of the rendered scene."""
+
+    background_rgb: tuple[float, float, float]
+    arm_rgb: tuple[float, float, float]
+    plate_rgb: tuple[float, float, float]
+    ambient: float
+    directional: float
+    light_direction_world: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """What the sensor adds to the optical image: noise (8-bit DN), blur (px) and exposure gain."""
+
+    noise_std_dn: float = 0.0
+    blur_sigma_px: float = 0.0
+    exposure_gain: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name, lo in (("noise_std_dn", 0.0), ("blur_sigma_px", 0.0), ("exposure_gain", 1e-6)):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= lo):
+                raise ValueError(f"{name}: expected a finite number >= {lo}, got {value!r}")
+
+
+def look_at(position: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """4x4 pose of an OpenCV camera (z forward, y down) at ``position`` looking at ``target``.
+
+    Raises:
+        ValueError: the camera and the target coincide or the view direction is parallel to ``up``.
+    """
+    forward = np.asarray(target, float) - np.asarray(position, float)
+    if np.linalg.norm(forward) < 1e-9:
+        raise ValueError("the camera position and the look-at point coincide")
+    z = forward / np.linalg.norm(forward)
+    x = np.cross(z, np.asarray(up, float))
+    if np.linalg.norm(x) < 1e-6:
+        raise ValueError("the viewing direction is parallel to the up vector")
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    T = np.eye(4)
+    T[:3, :3] = np.column_stack([x, y, z])
+    T[:3, 3] = position
+    return T
+
+
+@dataclass(frozen=True, eq=False)
+class StereoRig:
+    """The simulated stereo camera: its calibration, its pose in the world, what it sees.
+
+    Attributes:
+        calibration: the exact calibration the renderer uses (OpenCV conventions).
+        T_world_cam_left: (4, 4) pose of the left camera (OpenCV axes) in the world, metres.
+        appearance: colours and lights.
+        sensor: noise, blur and exposure of the raw images.
+        source: the file it was loaded from, if any.
+    """
+
+    calibration: StereoCalibration
+    T_world_cam_left: np.ndarray
+    appearance: Appearance
+    sensor: SensorModel
+    source: Path | None = None
+
+    def __post_init__(self) -> None:
+        T = np.array(self.T_world_cam_left, dtype=np.float64)
+        if T.shape != (4, 4) or not np.allclose(T[3], (0, 0, 0, 1)):
+            raise ValueError(f"T_world_cam_left: expected a 4x4 rigid transform, got shape {T.shape}")
+        R = T[:3, :3]
+        if not np.allclose(R @ R.T, np.eye(3), atol=1e-9) or np.linalg.det(R) < 0:
+            raise ValueError("T_world_cam_left: the rotation part is not a proper rotation")
+        T.setflags(write=False)
+        object.__setattr__(self, "T_world_cam_left", T)
+
+    # --- loading -----------------------------------------------------------------------------
+
+    @classmethod
+    def load(cls, path: str | Path) -> StereoRig:
+        """Read ``camera.toml``.
+
+        Raises:
+            ConfigFileError: the file is missing, a key is missing, unknown or has a bad value;
+                the message names the file and the key.
+        """
+        path = Path(path)
+        data = load_toml(path, "camera")
+        top = TableReader(path, data)
+
+        image = top.sub("image")
+        size = (image.take("width_px", integer(16, 16384)), image.take("height_px", integer(16, 16384)))
+        image.done()
+
+        eyes = {}
+        for side in ("left", "right"):
+            t = top.sub(side)
+            fx, fy = t.take("fx_px", number(0, lo_open=True)), t.take("fy_px", number(0, lo_open=True))
+            cx, cy = t.take("cx_px", number()), t.take("cy_px", number())
+            dist = t.take("dist", vector((4, 5), -10, 10))
+            t.done()
+            eyes[side] = (np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]]), dist)
+
+        ext = top.sub("extrinsics")
+        rvec = ext.take("rotation_mrad", vector(3, -1000, 1000)) * 1e-3
+        T_m = ext.take("T_m", vector(3, -10, 10))
+        if np.linalg.norm(T_m) <= 0:
+            raise ext.error("T_m", "the baseline is zero")
+        ext.done()
+
+        pose = top.sub("pose")
+        position = pose.take("position_m", vector(3))
+        target = pose.take("look_at_m", vector(3))
+        up = pose.take("up_world", vector(3))
+        try:
+            T_world_cam = look_at(position, target, up)
+        except ValueError as e:
+            raise pose.error("look_at_m", str(e)) from e
+        pose.done()
+
+        look = top.sub("appearance")
+        colour = vector(3, 0.0, 1.0)
+        appearance = Appearance(
+            background_rgb=tuple(look.take("background_rgb", colour)),
+            arm_rgb=tuple(look.take("arm_rgb", colour)),
+            plate_rgb=tuple(look.take("plate_rgb", colour)),
+            ambient=look.take("ambient", number(0.0, 1.0)),
+            directional=look.take("directional", number(0.0, 4.0)),
+            light_direction_world=tuple(look.take("light_direction_world", vector(3))),
+        )
+        if np.linalg.norm(appearance.light_direction_world) < 1e-9:
+            raise look.error("light_direction_world", "must not be the zero vector")
+        look.done()
+
+        sens = top.sub("sensor")
+        sensor = SensorModel(
+            noise_std_dn=sens.take("noise_std_dn", number(0.0, 64.0)),
+            blur_sigma_px=sens.take("blur_sigma_px", number(0.0, 20.0)),
+            exposure_gain=sens.take("exposure_gain", number(0.0, 16.0, lo_open=True)),
+        )
+        sens.done()
+        top.done()
+
+        try:
+            R = cv2.Rodrigues(rvec)[0]
+            calibration = StereoCalibration(eyes["left"][0], eyes["left"][1], eyes["right"][0], eyes["right"][1],
+                                            R, T_m, size)
+        except ValueError as e:
+            raise ConfigFileError(f"{path}: {e}") from e
+        return cls(calibration, T_world_cam, appearance, sensor, path)
+
+    # --- frames ------------------------------------------------------------------------------
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        """(width, height) of each raw image, pixels."""
+        return self.calibration.image_size
+
+    def T_world_cam(self, side: str = "left") -> np.ndarray:
+        """(4, 4) pose of one camera (OpenCV axes) in the world."""
+        if side == "left":
+            return self.T_world_cam_left.copy()
+        if side != "right":
+            raise ValueError(f"side: expected 'left' or 'right', got {side!r}")
+        T_left_right = np.eye(4)  # x_r = R x_l + T  =>  x_l = R^T x_r - R^T T
+        T_left_right[:3, :3] = self.calibration.R.T
+        T_left_right[:3, 3] = -self.calibration.R.T @ self.calibration.T
+        return self.T_world_cam_left @ T_left_right
+
+    def T_world_cam_gl(self, side: str = "left") -> np.ndarray:
+        """(4, 4) pose of one camera with OpenGL axes (x right, y up, looking down -z)."""
+        return self.T_world_cam(side) @ _GL_FROM_CV
+
+    def world_to_left_camera(self, points_world: np.ndarray) -> np.ndarray:
+        """(N, 3) world points -> (N, 3) left-camera points, metres."""
+        points = _points(points_world, "points_world")
+        T = self.T_world_cam_left
+        return (points - T[:3, 3]) @ T[:3, :3]
+
+    def left_camera_to_world(self, points_cam: np.ndarray) -> np.ndarray:
+        """(N, 3) left-camera points -> (N, 3) world points, metres."""
+        points = _points(points_cam, "points_cam")
+        T = self.T_world_cam_left
+        return points @ T[:3, :3].T + T[:3, 3]
+
+    def project_world(self, points_world: np.ndarray, side: str = "left") -> np.ndarray:
+        """(N, 3) world points -> (N, 2) raw pixels of one camera (distortion included)."""
+        return self.calibration.project(self.world_to_left_camera(points_world), side)
+
+
+def _points(points: np.ndarray, name: str) -> np.ndarray:
+    array = np.asarray(points, dtype=np.float64)
+    if array.ndim != 2 or array.shape[1] != 3:
+        raise ValueError(f"{name}: expected (N, 3), got {array.shape}")
+    return array
