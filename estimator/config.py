@@ -1,0 +1,197 @@
+"""Estimator settings: one frozen dataclass, two presets (the paper as written, and our default).
+
+A field left at ``None`` takes its mode's preset, so ``EstimatorConfig(mode="paper")`` is the
+faithful reproduction and any field can still be overridden for a study.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, fields
+
+MODES = ("default", "paper")
+CENTERLINES = ("som", "competitive", "kmeans++", "thinning", "skeleton")
+COMPENSATIONS = ("none", "nearest", "windowed")
+
+# Preset values per mode for the fields that default to None.
+_PRESETS = {
+    "paper": {
+        "roi": False,
+        "som_input": "contour",
+        "som_schedule": "online",
+        "som_refine_iterations": 0,
+        "medial_refinement": False,
+        "extend_ends": False,
+        "compensation": "nearest",
+        "smoothing_degree": 6,
+    },
+    "default": {
+        "roi": True,
+        "som_input": "mask",
+        "som_schedule": "batch",
+        "som_refine_iterations": 6,
+        "medial_refinement": True,
+        "extend_ends": True,
+        "compensation": "windowed",
+        "smoothing_degree": 0,  # 0: penalised spline instead of a polynomial
+    },
+}
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    """How the centerline is estimated. Pixel sizes refer to the full-resolution image.
+
+    Attributes:
+        mode: "default" (the best we can make) or "paper" (faithful reproduction of Zou et al.).
+        centerline: 2D centerline stage: "som" (paper), or a baseline of section 4.3:
+            "competitive" (Algorithm 2), "kmeans++" (Algorithm 3), "thinning" (skeleton sampled
+            at equal intervals), "skeleton" (ordered skeleton traversal, mBEST-like).
+        n_points: output points base -> tip (Table 1: n = 20 SOM neurons).
+        hsv_low, hsv_high: inclusive HSV range of the arm in OpenCV units (H 0..180). The default
+            segments an orange arm; if ``hsv_low[0] > hsv_high[0]`` the hue range wraps through 0.
+        median_ksize: median filter aperture (odd).
+        open_ksize, close_ksize: morphological opening (removes isolated pixels) and closing
+            (fills small holes) kernel sizes; 0 disables.
+        canny_low, canny_high: Canny thresholds applied to the binary mask.
+        contour_step: equal-interval downsampling of the contour (keep every k-th point).
+        min_area_px: connected regions smaller than this are noise, not arm.
+        base_pixel: (u, v) of the arm's base in the raw LEFT image; None means "the chain end
+            nearest the top edge of the left image".
+        som_alpha0, som_epochs, som_radius: Table 1 (alpha0 = 0.2, lambda = 15, N = 2).
+        som_time: what t in alpha(t) = alpha0 / (1 + t / lambda) counts: "epoch" (Remark 2 read
+            as training rounds; alpha ends near 0.1) or "sample" (every presented point).
+        som_sigma: width of the Gaussian neighbourhood eta(r) in node units; the radius
+            N(t) = N (1 - t / lambda) shrinks and nodes beyond ceil(N(t)) are not moved.
+        som_seed: seed of the per-epoch presentation order (fixed, so results are reproducible
+            and independent of the order of the input points).
+        som_compiled: run the numba-compiled SOM (True) or the numpy reference (False, paper speed).
+        som_input: "contour" (paper) or "mask" (all arm pixels: unbiased centre).
+        som_schedule: "online" (Algorithm 1) or "batch" (deterministic batch SOM).
+        som_refine_iterations: batch SOM iterations (default mode; after warm start or cold init).
+        mask_stride: use every k-th mask pixel in each direction as SOM input.
+        medial_refinement: move each centerline sample to the midpoint of the silhouette chord
+            normal to the curve (sub-pixel, unbiased on bends).
+        extend_ends: extend both ends to where the silhouette ends, corrected for the end-cap
+            geometry using ``arm_radius_m``.
+        arm_radius_m: tube radius, used for the end-cap correction and plausibility checks.
+        compensation: misalignment compensation: "nearest" (the paper: cubic spline on the right
+            nodes, the crossing of the left row nearest the node), "windowed" (crossings only near
+            the same arc length, disparity interpolated where the curve runs along the rows), "none".
+        smoothing_degree: degree of the polynomial fit of the 3D curve (paper: 6); 0 selects a
+            penalised cubic spline on disparity (default mode).
+        roi_margin_px: margin around the previous frame's arm when processing a region of interest.
+        roi: process only a region of interest around the arm (found on a coarse image).
+        max_self_approach: a centerline that comes closer to itself than this fraction of the arm
+            width (between parts more than two widths apart along it) is a self-overlap: invalid.
+    """
+
+    mode: str = "default"
+    centerline: str = "som"
+    n_points: int = 20
+    hsv_low: tuple[int, int, int] = (5, 100, 50)
+    hsv_high: tuple[int, int, int] = (25, 255, 255)
+    median_ksize: int = 5
+    open_ksize: int = 3
+    close_ksize: int = 5
+    canny_low: int = 50
+    canny_high: int = 150
+    contour_step: int = 4
+    min_area_px: int = 150
+    base_pixel: tuple[float, float] | None = None
+    som_alpha0: float = 0.2
+    som_epochs: int = 15
+    som_radius: int = 2
+    som_time: str = "epoch"
+    som_sigma: float = 1.0
+    som_seed: int = 0
+    som_compiled: bool = True
+    som_input: str | None = None
+    som_schedule: str | None = None
+    som_refine_iterations: int | None = None
+    mask_stride: int = 2
+    medial_refinement: bool | None = None
+    extend_ends: bool | None = None
+    arm_radius_m: float = 0.025
+    compensation: str | None = None
+    smoothing_degree: int | None = None
+    roi: bool | None = None
+    roi_margin_px: int = 48
+    max_self_approach: float = 0.8
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"mode: expected one of {MODES}, got {self.mode!r}")
+        for name, value in _PRESETS[self.mode].items():
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, value)
+        _check(self.centerline in CENTERLINES, "centerline", f"one of {CENTERLINES}", self.centerline)
+        _check(self.compensation in COMPENSATIONS, "compensation", f"one of {COMPENSATIONS}", self.compensation)
+        _check(self.som_input in ("contour", "mask"), "som_input", "'contour' or 'mask'", self.som_input)
+        _check(self.som_schedule in ("online", "batch"), "som_schedule", "'online' or 'batch'", self.som_schedule)
+        _check(self.som_time in ("epoch", "sample"), "som_time", "'epoch' or 'sample'", self.som_time)
+        _check(_int(self.n_points) and 3 <= self.n_points <= 500, "n_points", "an integer in [3, 500]",
+               self.n_points)
+        for name in ("hsv_low", "hsv_high"):
+            value = tuple(getattr(self, name))
+            ok = len(value) == 3 and all(_int(v) for v in value)
+            ok = ok and 0 <= value[0] <= 180 and all(0 <= v <= 255 for v in value[1:])
+            _check(ok, name, "(H, S, V) integers with H in [0, 180], S and V in [0, 255]", getattr(self, name))
+            object.__setattr__(self, name, value)
+        _check(self.hsv_low[1] <= self.hsv_high[1] and self.hsv_low[2] <= self.hsv_high[2], "hsv_low",
+               "S and V not above hsv_high", self.hsv_low)
+        _check(_int(self.median_ksize) and self.median_ksize in (0, 1, 3, 5, 7, 9), "median_ksize",
+               "0 (off) or an odd size up to 9", self.median_ksize)
+        for name in ("open_ksize", "close_ksize", "contour_step", "min_area_px", "mask_stride", "roi_margin_px",
+                     "som_epochs", "som_radius", "som_refine_iterations", "som_seed"):
+            _check(_int(getattr(self, name)) and getattr(self, name) >= 0, name, "a non-negative integer",
+                   getattr(self, name))
+        _check(self.contour_step >= 1 and self.mask_stride >= 1, "contour_step", "at least 1", self.contour_step)
+        _check(self.som_epochs >= 1, "som_epochs", "at least 1", self.som_epochs)
+        _check(0 < self.som_alpha0 <= 1, "som_alpha0", "a number in (0, 1]", self.som_alpha0)
+        _check(self.som_sigma > 0, "som_sigma", "a positive number", self.som_sigma)
+        _check(self.arm_radius_m > 0, "arm_radius_m", "a positive number of metres", self.arm_radius_m)
+        _check(_int(self.smoothing_degree) and 0 <= self.smoothing_degree <= 12, "smoothing_degree",
+               "an integer in [0, 12]", self.smoothing_degree)
+        _check(0 <= self.max_self_approach < 5, "max_self_approach", "a fraction in [0, 5)", self.max_self_approach)
+        if self.base_pixel is not None:
+            bp = tuple(self.base_pixel)
+            _check(len(bp) == 2 and all(isinstance(v, int | float) for v in bp), "base_pixel", "(u, v) pixels",
+                   self.base_pixel)
+            object.__setattr__(self, "base_pixel", (float(bp[0]), float(bp[1])))
+        for name in ("roi", "medial_refinement", "extend_ends", "som_compiled"):
+            _check(isinstance(getattr(self, name), bool), name, "true or false", getattr(self, name))
+
+    @classmethod
+    def from_dict(cls, values: dict, source: str = "estimator config") -> EstimatorConfig:
+        """Build from a TOML table; unknown keys and bad values name ``source`` and the key."""
+        known = {f.name for f in fields(cls)}
+        for key in values:
+            if key not in known:
+                raise ValueError(f"{source}: unknown key {key!r}; known keys: {', '.join(sorted(known))}")
+        try:
+            return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in values.items()})
+        except ValueError as e:
+            raise ValueError(f"{source}: {e}") from e
+
+    def replace(self, **changes) -> EstimatorConfig:
+        """A copy with some fields changed; preset fields follow a changed mode unless given."""
+        if "mode" in changes and changes["mode"] != self.mode:
+            base = {f.name: getattr(self, f.name) for f in fields(self)}
+            for name in _PRESETS[self.mode]:
+                base[name] = None
+            base.update(changes)
+            return EstimatorConfig(**base)
+        return dataclasses.replace(self, **changes)
+
+    def as_dict(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+def _int(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _check(ok: bool, name: str, expected: str, got) -> None:
+    if not ok:
+        raise ValueError(f"{name}: expected {expected}, got {got!r}")

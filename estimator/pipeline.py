@@ -1,0 +1,401 @@
+"""The centerline estimator: composes the stages, keeps warm-start state and per-stage timings.
+
+Paper mode (sections 3-4 as written): full-frame rectification, segmentation, Canny contour,
+online SOM on the contour warm-started from the previous frame, cubic-spline misalignment
+compensation, least-squares triangulation of the n nodes, 6th-degree polynomial.
+
+Default mode keeps the SOM as the tracker but works in a region of interest, trains a batch SOM
+on all arm pixels, moves the chain onto the silhouette's medial axis with sub-pixel chords,
+matches rows only near the same place along the arm with a disparity profile that bridges
+stretches running along the rows, and finds the true ends from the silhouette and the end-cap
+geometry.
+"""
+
+from __future__ import annotations
+
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from estimator.calibration import StereoCalibration
+from estimator.clustering import competitive_learning, kmeans_plus_plus, order_greedy
+from estimator.config import EstimatorConfig
+from estimator.correspondence import compensate_nodes, match_rows
+from estimator.refinement import Centerline2D, refine_centerline
+from estimator.segmentation import arm_mask, bounding_box, contour_points, has_holes, hsv_mask, mask_points, \
+    remove_small_regions
+from estimator.skeleton import arm_width_px, ordered_skeleton_path, resample_polyline, thinning_centerline
+from estimator.smoothing import polynomial_smooth, robust_spline_profile
+from estimator.som import linear_init, som_batch, som_online
+from estimator.triangulation import triangulate
+
+COARSE_SCALE = 4
+WIDTH_CUE_WEIGHT = 0.02  # a row crossing at ~8 degrees weighs as much as one width sample
+SIDES = ("left", "right")
+
+
+@dataclass(frozen=True, eq=False)
+class EstimateResult:
+    """One frame's estimate.
+
+    Attributes:
+        points: (n, 3) metres, left camera frame (x right, y down, z forward), base -> tip;
+            (0, 3) when not valid.
+        valid: False when no trustworthy centerline was found; ``reason`` says why.
+        left_uv, right_uv: (n, 2) the 2D centerlines in raw pixel coordinates.
+        timings_ms: milliseconds per stage and in total.
+        nodes_rect: side -> (n, 2) 2D centerline nodes in rectified pixels (for eqs. 9-11).
+        misalignment_px: eq. (11) between the left and right nodes before compensation.
+    """
+
+    points: np.ndarray
+    valid: bool
+    reason: str
+    left_uv: np.ndarray
+    right_uv: np.ndarray
+    timings_ms: dict[str, float]
+    nodes_rect: dict[str, np.ndarray] = field(default_factory=dict)
+    misalignment_px: float = float("nan")
+
+
+class _NoArm(Exception):
+    """A frame without a trustworthy centerline; the message becomes ``EstimateResult.reason``."""
+
+
+@dataclass
+class _Side:
+    """What one image contributes: ordered nodes and, in default mode, the refined curve."""
+
+    nodes: np.ndarray  # (n, 2) rectified canvas pixels, base first
+    curve: Centerline2D | None = None
+    width_px: float = 0.0
+
+
+class CenterlineEstimator:
+    """Estimate the 3D centerline of the arm from raw stereo pairs.
+
+    Args:
+        calibration: the stereo calibration of the raw images.
+        config: estimator settings; ``EstimatorConfig()`` is the default mode.
+    """
+
+    def __init__(self, calibration: StereoCalibration, config: EstimatorConfig | None = None) -> None:
+        if not isinstance(calibration, StereoCalibration):
+            raise TypeError(f"calibration: expected a StereoCalibration, got {type(calibration).__name__}")
+        self.calibration = calibration
+        self.config = config or EstimatorConfig()
+        self._rect = calibration.rectification
+        self._coarse_maps = {}
+        for side in SIDES:
+            m1, m2 = self._rect.maps(side)
+            self._coarse_maps[side] = (np.ascontiguousarray(m1[::COARSE_SCALE, ::COARSE_SCALE]),
+                                       np.ascontiguousarray(m2[::COARSE_SCALE, ::COARSE_SCALE]))
+        self._base_hint = None
+        if self.config.base_pixel is not None:
+            self._base_hint = self._rect.rectify_points(np.array([self.config.base_pixel]), "left")[0]
+        self._warm: dict[str, np.ndarray | None] = {side: None for side in SIDES}
+
+    def reset(self) -> None:
+        """Forget the previous frame: the next estimate starts cold."""
+        self._warm = {side: None for side in SIDES}
+
+    # --- public entry point -------------------------------------------------------------
+
+    def estimate(self, left_bgr: np.ndarray, right_bgr: np.ndarray) -> EstimateResult:
+        """Estimate the centerline from one raw stereo pair.
+
+        Args:
+            left_bgr, right_bgr: (H, W, 3) uint8 BGR raw camera images (distorted, unrectified)
+                of the calibration's image size.
+
+        Returns:
+            The estimate; ``valid=False`` with a reason (and the warm state untouched) when no arm
+            is found or the silhouette cannot be trusted.
+
+        Raises:
+            ValueError: an image has the wrong type, dtype or size for the calibration.
+        """
+        for name, image in (("left_bgr", left_bgr), ("right_bgr", right_bgr)):
+            self._check_image(name, image)
+        timings: dict[str, float] = {}
+        start = time.perf_counter()
+        try:
+            sides = {side: self._process_side(image, side, timings)
+                     for side, image in (("left", left_bgr), ("right", right_bgr))}
+            self._orient_right_like_left(sides)
+            if self.config.mode == "paper" or sides["left"].curve is None or sides["right"].curve is None:
+                points, uv_left_rect, uv_right_rect = self._reconstruct_nodes(sides, timings)
+            else:
+                points, uv_left_rect, uv_right_rect = self._reconstruct_dense(sides, timings)
+        except _NoArm as e:
+            timings["total"] = (time.perf_counter() - start) * 1e3
+            empty2 = np.zeros((0, 2))
+            return EstimateResult(np.zeros((0, 3)), False, str(e), empty2, empty2, timings)
+        with _timed(timings, "output"):
+            left_uv = self._rect.unrectify_points(uv_left_rect, "left")
+            right_uv = self._rect.unrectify_points(uv_right_rect, "right")
+            for side in SIDES:
+                self._warm[side] = sides[side].nodes
+        timings["total"] = (time.perf_counter() - start) * 1e3
+        nodes = {side: sides[side].nodes for side in SIDES}
+        misalignment = float(np.mean(np.abs(nodes["left"][:, 1] - nodes["right"][:, 1])))
+        return EstimateResult(points, True, "", left_uv, right_uv, timings, nodes, misalignment)
+
+    # --- per image ----------------------------------------------------------------------
+
+    def _check_image(self, name: str, image) -> None:
+        w, h = self.calibration.image_size
+        if not isinstance(image, np.ndarray):
+            raise ValueError(f"{name}: expected a numpy array (H, W, 3) uint8 BGR, got {type(image).__name__}")
+        if image.dtype != np.uint8:
+            raise ValueError(f"{name}: expected dtype uint8, got {image.dtype}")
+        if image.shape != (h, w, 3):
+            raise ValueError(f"{name}: expected shape {(h, w, 3)} (the calibration's image_size {w}x{h}, BGR), "
+                             f"got {image.shape}")
+
+    def _process_side(self, image: np.ndarray, side: str, timings: dict) -> _Side:
+        cfg = self.config
+        with _timed(timings, "rectify"):
+            roi = self._find_roi(image, side) if cfg.roi else (0, 0, *self._rect.size)
+            if roi is None:
+                raise _NoArm(f"no arm found in the {side} image")
+            crop = self._rect.rectify_image(image, side, roi)
+        with _timed(timings, "segment"):
+            mask = arm_mask(crop, cfg)
+            if not mask.any():
+                raise _NoArm(f"no arm found in the {side} image")
+            offset = np.array(roi[:2], dtype=np.float64)
+            if has_holes(mask, cfg.min_area_px):
+                raise _NoArm(f"self-overlap in the {side} image: the silhouette encloses a loop")
+            samples = (mask_points(mask, cfg.mask_stride) if cfg.som_input == "mask"
+                       else contour_points(mask, cfg.canny_low, cfg.canny_high, cfg.contour_step))
+            if len(samples) < 3:
+                raise _NoArm(f"no arm found in the {side} image: only {len(samples)} arm samples")
+        with _timed(timings, "centerline"):
+            warm = self._warm[side]
+            hint = self._base_hint - offset if (side == "left" and self._base_hint is not None) else None
+            nodes = self._centerline(mask, samples, None if warm is None else warm - offset, hint)
+            if len(nodes) < 3:
+                raise _NoArm(f"no centerline found in the {side} image")
+            nodes = self._orient(nodes, hint, warm is not None)
+        curve = None
+        width = 0.0
+        if cfg.medial_refinement:
+            with _timed(timings, "refine"):
+                curve = refine_centerline(mask, nodes, extend_ends=cfg.extend_ends)
+                if curve is None:
+                    raise _NoArm(f"the {side} centerline does not follow the silhouette")
+                width = 2.0 * float(np.nanmedian(curve.half_width_px))
+                _check_self_approach(curve.points, width, cfg.max_self_approach, side)
+                curve = curve.shifted(offset)
+                nodes = resample_polyline(curve.points, cfg.n_points)
+        else:
+            nodes = nodes + offset
+            width = float(np.count_nonzero(mask)) / max(_polyline_length(nodes), 1.0)
+            _check_self_approach(nodes, width, cfg.max_self_approach, side)
+        return _Side(nodes, curve, width)
+
+    def _find_roi(self, image: np.ndarray, side: str) -> tuple[int, int, int, int] | None:
+        """Region of the rectified canvas holding the arm, found on a 1/4-scale rectified image."""
+        cfg = self.config
+        m1, m2 = self._coarse_maps[side]
+        coarse = cv2.remap(image, m1, m2, cv2.INTER_NEAREST)
+        mask = remove_small_regions(hsv_mask(coarse, cfg.hsv_low, cfg.hsv_high),
+                                    max(cfg.min_area_px // COARSE_SCALE**2, 2))
+        box = bounding_box(mask)
+        if box is None:
+            return None
+        w, h = self._rect.size
+        x0, y0, x1, y1 = (v * COARSE_SCALE for v in box)
+        m = cfg.roi_margin_px
+        return max(x0 - m, 0), max(y0 - m, 0), min(x1 + m, w), min(y1 + m, h)
+
+    def _centerline(self, mask: np.ndarray, samples: np.ndarray, warm: np.ndarray | None,
+                    hint: np.ndarray | None) -> np.ndarray:
+        """The 2D centerline stage: ordered nodes (ROI pixels) from the chosen method."""
+        cfg = self.config
+        n = cfg.n_points
+        if cfg.centerline == "thinning":
+            return thinning_centerline(mask, n)
+        if cfg.centerline == "skeleton":
+            return resample_polyline(ordered_skeleton_path(mask, hint), n)
+        if cfg.centerline == "kmeans++":
+            centres = kmeans_plus_plus(samples, n, seed=cfg.som_seed)
+            start = hint if hint is not None else samples[np.argmin(samples[:, 1])]
+            return order_greedy(centres, start)
+        if warm is not None:
+            init = warm
+        elif cfg.mode == "default":
+            init = self._cold_start(mask, hint)
+        else:
+            init = linear_init(samples, n)
+        if cfg.centerline == "competitive":
+            return competitive_learning(samples, init, epochs=cfg.som_epochs, alpha=cfg.som_alpha0, seed=cfg.som_seed)
+        nodes = init
+        if cfg.som_schedule == "online":
+            nodes = som_online(samples, nodes, epochs=cfg.som_epochs, alpha0=cfg.som_alpha0, lam=float(cfg.som_epochs),
+                               radius=cfg.som_radius, sigma0=cfg.som_sigma, seed=cfg.som_seed, time=cfg.som_time,
+                               compiled=cfg.som_compiled)
+        return som_batch(samples, nodes, iterations=cfg.som_refine_iterations)
+
+    def _cold_start(self, mask: np.ndarray, hint: np.ndarray | None) -> np.ndarray:
+        """Ordered initial nodes from the skeleton (half resolution), robust to U and S shapes."""
+        half = cv2.resize(mask, (mask.shape[1] // 2, mask.shape[0] // 2), interpolation=cv2.INTER_AREA)
+        half = np.where(half >= 128, 255, 0).astype(np.uint8)
+        path = ordered_skeleton_path(half, None if hint is None else hint / 2)
+        if len(path) < 2:
+            return linear_init(mask_points(mask, 2), self.config.n_points)
+        return resample_polyline(path * 2.0 + 0.5, self.config.n_points)
+
+    def _orient(self, nodes: np.ndarray, hint: np.ndarray | None, warm: bool) -> np.ndarray:
+        """Base first: keep a warm chain's order; else the end nearest the base hint or the top edge."""
+        if warm:
+            return nodes
+        if hint is not None:
+            flip = np.linalg.norm(nodes[-1] - hint) < np.linalg.norm(nodes[0] - hint)
+        else:
+            flip = nodes[-1, 1] < nodes[0, 1]
+        return nodes[::-1].copy() if flip else nodes
+
+    def _orient_right_like_left(self, sides: dict[str, _Side]) -> None:
+        """Make the right chain start at the same end as the left one (same rows after rectification)."""
+        left, right = sides["left"].nodes, sides["right"].nodes
+        keep = abs(left[0, 1] - right[0, 1]) + abs(left[-1, 1] - right[-1, 1])
+        flip = abs(left[0, 1] - right[-1, 1]) + abs(left[-1, 1] - right[0, 1])
+        if flip < keep:
+            r = sides["right"]
+            curve = None if r.curve is None else Centerline2D(r.curve.points[::-1], r.curve.valid[::-1],
+                                                              r.curve.half_width_px[::-1],
+                                                              r.curve.arc_px[-1] - r.curve.arc_px[::-1])
+            sides["right"] = _Side(r.nodes[::-1].copy(), curve, r.width_px)
+
+    # --- stereo -------------------------------------------------------------------------
+
+    def _reconstruct_nodes(self, sides: dict[str, _Side], timings: dict):
+        """Paper path: compensate the right nodes, triangulate the n pairs, fit a polynomial."""
+        cfg = self.config
+        left, right = sides["left"].nodes, sides["right"].nodes
+        with _timed(timings, "match"):
+            if cfg.compensation == "nearest":
+                right = compensate_nodes(left, right)
+            elif cfg.compensation == "windowed":
+                right = compensate_nodes(left, right, window_nodes=2.0)
+        with _timed(timings, "triangulate"):
+            points_rect = triangulate(self._rect.P["left"], self._rect.P["right"], left, right)
+            if np.any(points_rect[:, 2] <= 0):
+                raise _NoArm("triangulated points behind the camera: left and right centerlines disagree")
+            points = self._rect.to_left_camera(points_rect)
+        with _timed(timings, "smooth"):
+            if cfg.smoothing_degree > 0:
+                points = polynomial_smooth(points, cfg.smoothing_degree)
+        return points, left, right
+
+    def _reconstruct_dense(self, sides: dict[str, _Side], timings: dict):
+        """Default path: a disparity profile along the left curve, then cap-trimmed ends."""
+        cfg = self.config
+        left, right = sides["left"].curve, sides["right"].curve
+        tau = left.arc_px / max(left.arc_px[-1], 1e-9)
+        with _timed(timings, "match"):
+            disparity, weight = match_rows(left.points, right.points, right_valid=right.valid)
+            weight = np.where(left.valid, weight, 0.0)
+            if np.count_nonzero(weight > 0.05) < max(8, len(tau) // 5):
+                raise _NoArm("left and right centerlines do not match row by row")
+            x, y, w = _with_width_cue(tau, disparity, weight, left)
+            knots = int(np.clip(left.arc_px[-1] / 30.0, 3, 30))
+            profile = robust_spline_profile(x, y, w, tau, knots=knots)
+            if np.any(profile <= 0):
+                raise _NoArm("non-positive disparity: left and right centerlines disagree")
+        with _timed(timings, "triangulate"):
+            dense = self._disparity_points(left.points, profile)
+            if cfg.extend_ends:
+                span = (self._cap_trim(sides, dense, 0), self._cap_trim(sides, dense, -1))
+                grid = np.linspace(span[0], span[1], len(tau))
+                uv_left = np.column_stack([np.interp(grid, tau, left.points[:, k]) for k in range(2)])
+                dense = self._disparity_points(uv_left, np.interp(grid, tau, profile))
+        with _timed(timings, "smooth"):
+            if cfg.smoothing_degree > 0:
+                dense = polynomial_smooth(dense, cfg.smoothing_degree)
+            points_rect = resample_polyline(dense, cfg.n_points)
+            points = self._rect.to_left_camera(points_rect)
+            uv_l = _project_rect(self._rect.P["left"], points_rect)
+            uv_r = _project_rect(self._rect.P["right"], points_rect)
+        return points, uv_l, uv_r
+
+    def _disparity_points(self, uv_left: np.ndarray, disparity: np.ndarray) -> np.ndarray:
+        """(M, 3) rectified-frame points from left pixels and disparities (eqs. 7-8)."""
+        uv_right = uv_left - np.column_stack([disparity, np.zeros_like(disparity)])
+        return triangulate(self._rect.P["left"], self._rect.P["right"], uv_left, uv_right)
+
+    def _cap_trim(self, sides: dict[str, _Side], dense: np.ndarray, end: int) -> float:
+        """Where the axis really ends on the left curve, as tau in [0, 1].
+
+        The left curve runs out to the silhouette's ends, and the silhouette of a flat-ended tube
+        reaches past the axis end by the cap's projected half-axis, f r |t . s| / Z pixels along
+        the curve (t the axis direction, s the line of sight). Depth comes from the profile, not
+        from the silhouette's extreme points: those lie on the cap's rim, up to r nearer.
+        """
+        radius = self.config.arm_radius_m
+        arc3 = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(dense, axis=0), axis=1))])
+        index = np.arange(len(arc3))
+        inside = float(np.interp(2 * radius if end == 0 else arc3[-1] - 2 * radius, arc3, index))
+        axis = dense[end] - np.array([np.interp(inside, index, dense[:, k]) for k in range(3)])
+        axis /= np.linalg.norm(axis) + 1e-12
+        sight = dense[end] / (np.linalg.norm(dense[end]) + 1e-12)
+        overshoot_px = self._rect.focal_px * radius * abs(float(axis @ sight)) / dense[end, 2]
+        length = sides["left"].curve.arc_px[-1]
+        pull = min(overshoot_px, 0.25 * length) / length
+        return pull if end == 0 else 1.0 - pull
+
+
+# --- helpers ------------------------------------------------------------------------------
+
+
+@contextmanager
+def _timed(timings: dict, stage: str):
+    start = time.perf_counter()
+    try:
+        yield
+    finally:
+        timings[stage] = timings.get(stage, 0.0) + (time.perf_counter() - start) * 1e3
+
+
+def _polyline_length(points: np.ndarray) -> float:
+    return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+
+
+def _check_self_approach(points: np.ndarray, width_px: float, fraction: float, side: str) -> None:
+    """Raise when the centerline passes closer to itself than ``fraction`` of the arm width."""
+    if fraction <= 0 or width_px <= 0 or len(points) < 3:
+        return
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    step = max(1, len(points) // 120)
+    p, a = points[::step], arc[::step]
+    distance = np.linalg.norm(p[:, None] - p[None], axis=2)
+    apart = np.abs(a[:, None] - a[None]) > 2.5 * width_px
+    if np.any(apart & (distance < fraction * width_px)):
+        raise _NoArm(f"self-overlap in the {side} image: the centerline crosses or touches itself")
+
+
+def _with_width_cue(tau: np.ndarray, disparity: np.ndarray, weight: np.ndarray, left: Centerline2D):
+    """Append the apparent tube width as a weak disparity observation.
+
+    Both the width and the disparity of a tube scale with 1/Z, so their ratio, measured where
+    rows pin the disparity down, turns widths into disparities where they cannot (the curve
+    running along the rows). Its weight is small: it only matters where rows say nothing.
+    """
+    width = 2.0 * left.half_width_px
+    good = (weight > 0.5) & np.isfinite(width)
+    if np.count_nonzero(good) < 8:
+        return tau, disparity, weight
+    ratio = float(np.median(disparity[good] / width[good]))
+    cue = np.isfinite(width)
+    return (np.append(tau, tau[cue]), np.append(disparity, ratio * width[cue]),
+            np.append(weight, np.full(np.count_nonzero(cue), WIDTH_CUE_WEIGHT)))
+
+
+def _project_rect(P: np.ndarray, points: np.ndarray) -> np.ndarray:
+    h = points @ P[:, :3].T + P[:, 3]
+    return h[:, :2] / h[:, 2:3]

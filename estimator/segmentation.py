@@ -1,0 +1,105 @@
+"""Contour segmentation (section 3.1): median filter, HSV threshold, morphology, Canny contour.
+
+Every function works on a rectified image or a region of it; pixel coordinates returned are
+(u, v) = (column, row) in that image.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from estimator.config import EstimatorConfig
+
+
+def hsv_mask(image_bgr: np.ndarray, low: tuple[int, int, int], high: tuple[int, int, int]) -> np.ndarray:
+    """Binary mask (uint8, 0/255) of pixels inside the inclusive HSV range; hue may wrap past 180."""
+    hsv = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2HSV)
+    if low[0] <= high[0]:
+        return cv2.inRange(hsv, np.array(low, np.uint8), np.array(high, np.uint8))
+    upper = cv2.inRange(hsv, np.array(low, np.uint8), np.array((180, high[1], high[2]), np.uint8))
+    lower = cv2.inRange(hsv, np.array((0, low[1], low[2]), np.uint8), np.array(high, np.uint8))
+    return cv2.bitwise_or(upper, lower)
+
+
+def arm_mask(image_bgr: np.ndarray, config: EstimatorConfig) -> np.ndarray:
+    """Segment the arm: median filter, HSV threshold, opening and closing, small regions removed.
+
+    Args:
+        image_bgr: (H, W, 3) uint8, rectified (or a region of it).
+        config: HSV range, filter sizes and the minimum region area.
+
+    Returns:
+        (H, W) uint8 mask, 255 on the arm.
+    """
+    image = cv2.medianBlur(image_bgr, config.median_ksize) if config.median_ksize > 1 else image_bgr
+    mask = hsv_mask(image, config.hsv_low, config.hsv_high)
+    if config.open_ksize > 1:
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (config.open_ksize, config.open_ksize))
+        mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, kernel)
+    if config.close_ksize > 1:
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (config.close_ksize, config.close_ksize))
+        mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, kernel)
+    return remove_small_regions(mask, config.min_area_px)
+
+
+def remove_small_regions(mask: np.ndarray, min_area_px: int) -> np.ndarray:
+    """Drop 8-connected regions smaller than ``min_area_px`` (isolated noise, reflections)."""
+    if min_area_px <= 1:
+        return mask
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    small = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] < min_area_px) + 1
+    if len(small) == 0:
+        return mask
+    keep = np.ones(count, dtype=bool)
+    keep[small] = False
+    keep[0] = False
+    return np.where(keep[labels], 255, 0).astype(np.uint8)
+
+
+def contour_points(mask: np.ndarray, canny_low: int, canny_high: int, step: int) -> np.ndarray:
+    """Canny edge of the mask traced as contours, downsampled at equal intervals along them.
+
+    Args:
+        mask: (H, W) uint8 arm mask.
+        canny_low, canny_high: Canny hysteresis thresholds.
+        step: keep every ``step``-th contour point (equal-interval downsampling).
+
+    Returns:
+        (K, 2) float64 (u, v) contour points; empty when there is no contour.
+    """
+    edges = cv2.Canny(mask, canny_low, canny_high)
+    contours, _ = cv2.findContours(edges, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return np.zeros((0, 2))
+    traced = np.concatenate([c.reshape(-1, 2) for c in contours])
+    return traced[::step].astype(np.float64)
+
+
+def mask_points(mask: np.ndarray, stride: int) -> np.ndarray:
+    """(K, 2) float64 (u, v) of the arm pixels on a ``stride`` grid (all pixels when stride = 1)."""
+    sub = mask[::stride, ::stride] if stride > 1 else mask
+    found = cv2.findNonZero(sub)
+    if found is None:
+        return np.zeros((0, 2))
+    return found.reshape(-1, 2).astype(np.float64) * stride
+
+
+def bounding_box(mask: np.ndarray) -> tuple[int, int, int, int] | None:
+    """(x0, y0, x1, y1) exclusive bounds of the non-zero pixels, or None for an empty mask."""
+    found = cv2.findNonZero(mask)
+    if found is None:
+        return None
+    x, y, w, h = cv2.boundingRect(found)
+    return x, y, x + w, y + h
+
+
+def has_holes(mask: np.ndarray, min_hole_px: int) -> bool:
+    """True when the arm region encloses background: a loop, e.g. the tip folded onto the arm."""
+    contours, hierarchy = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
+    if hierarchy is None:
+        return False
+    for contour, (_, _, _, parent) in zip(contours, hierarchy[0], strict=True):
+        if parent >= 0 and cv2.contourArea(contour) >= min_hole_px:
+            return True
+    return False
