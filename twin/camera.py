@@ -1,0 +1,131 @@
+"""The twin's stereo camera: the ``hardware.StereoCamera`` contract, rendering the simulated arm.
+
+``grab()`` renders the arm's current shape into a raw (distorted, noisy) stereo pair, stamped
+with the simulated time; ``depth_left()`` gives the left depth map of that same frame (the
+paper's Q' metric compares against it). The calibration is the one the renderer uses.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from estimator import StereoCalibration
+from hardware.errors import DeviceError, NotConnectedError
+from hardware.interfaces import StereoCamera, StereoFrame
+from twin.render import StereoRenderer
+from twin.rig import StereoRig
+from twin.shape import ArmShape
+
+
+class SimStereoCamera(StereoCamera):
+    """A simulated ZED: raw BGR pairs of whatever ``shape_source`` returns at each grab.
+
+    Args:
+        rig: the cameras (calibration, pose, appearance, sensor).
+        shape_source: returns the arm's current :class:`ArmShape` (world frame).
+        clock_s: returns the current simulated time, seconds (the frames' timestamps).
+        seed: sensor-noise seed; frames are reproducible for a seed and a sequence of shapes.
+        tube_sides: vertices around the rendered tube.
+
+    The OpenGL context is created by ``connect()`` and released by ``close()``.
+    """
+
+    def __init__(self, rig: StereoRig, shape_source: Callable[[], ArmShape], clock_s: Callable[[], float], *,
+                 seed: int = 0, tube_sides: int = 48) -> None:
+        self._rig = rig
+        self._shape_source = shape_source
+        self._clock_s = clock_s
+        self._seed = int(seed)
+        self._tube_sides = int(tube_sides)
+        self._renderer: StereoRenderer | None = None
+        self._connections = 0
+        self._index = 0
+        self._last_depth: np.ndarray | None = None
+        self._last_shape: ArmShape | None = None
+
+    @property
+    def calibration(self) -> StereoCalibration:
+        """The exact calibration the images are rendered with (OpenCV conventions)."""
+        return self._rig.calibration
+
+    @property
+    def rig(self) -> StereoRig:
+        return self._rig
+
+    @property
+    def is_connected(self) -> bool:
+        return self._renderer is not None
+
+    @property
+    def renderer(self) -> StereoRenderer:
+        """The connected renderer (e.g. to render calibration-board views through this camera).
+
+        Raises:
+            NotConnectedError: before ``connect()`` or after ``close()``.
+        """
+        if self._renderer is None:
+            raise NotConnectedError(f"{type(self).__name__}: renderer used before connect()")
+        return self._renderer
+
+    def connect(self) -> None:
+        """Create the offscreen renderer; frame indices restart at 0.
+
+        Raises:
+            DeviceError: already connected.
+            RenderBackendError: no offscreen OpenGL (EGL); the message names the packages to install.
+        """
+        if self._renderer is not None:
+            raise DeviceError(f"{type(self).__name__}: already connected; close() it before connecting again")
+        # A new connection continues the noise sequence rather than repeating the first one's.
+        self._renderer = StereoRenderer(self._rig, seed=self._seed + self._connections, tube_sides=self._tube_sides)
+        self._connections += 1
+        self._index = 0
+        self._last_depth = None
+        self._last_shape = None
+
+    def grab(self) -> StereoFrame:
+        """Render the arm as it is now.
+
+        Returns:
+            StereoFrame with raw (H, W, 3) uint8 BGR images, ``timestamp_s`` = simulated time and
+            the frame index (0 for the first frame after ``connect()``).
+
+        Raises:
+            NotConnectedError: before ``connect()`` or after ``close()``.
+        """
+        if self._renderer is None:
+            raise NotConnectedError(f"{type(self).__name__}: grab() before connect()")
+        shape = self._shape_source()
+        images = self._renderer.render(shape, depth=True)
+        frame = StereoFrame(images.left, images.right, float(self._clock_s()), self._index)
+        self._index += 1
+        self._last_depth = images.depth_left_m
+        self._last_shape = shape
+        return frame
+
+    def depth_left(self) -> np.ndarray:
+        """Depth of the last grabbed frame: (H, W) float32 metres along the left optical axis at
+        each RAW left pixel; ``inf`` where only background is seen.
+
+        Raises:
+            NotConnectedError: not connected.
+            DeviceError: no frame has been grabbed since ``connect()``.
+        """
+        if self._renderer is None:
+            raise NotConnectedError(f"{type(self).__name__}: depth_left() before connect()")
+        if self._last_depth is None:
+            raise DeviceError(f"{type(self).__name__}: depth_left() before the first grab()")
+        return self._last_depth
+
+    @property
+    def last_shape(self) -> ArmShape | None:
+        """The arm shape the last grabbed frame shows (world frame), None before the first grab."""
+        return self._last_shape
+
+    def close(self) -> None:
+        """Release the OpenGL context; closing twice is harmless."""
+        renderer, self._renderer = self._renderer, None
+        if renderer is not None:
+            renderer.close()

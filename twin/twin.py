@@ -1,0 +1,208 @@
+"""The ``Twin`` facade: the arm's physics, its valves and its stereo camera, plus exact truth.
+
+    from twin import Twin
+    tw = Twin()                                          # models/twin.toml; Twin.from_config(path)
+    tw.valves.set_pressures({"s1_a": 1.5, "s3": 2.0})    # hardware.ValveBank contract
+    tw.advance(0.5); tw.settle()                         # simulated seconds; run until static
+    frame = tw.camera.grab()                             # hardware.StereoFrame, raw BGR pair
+    calib = tw.camera.calibration                        # the calibration used to render
+    gt = tw.backbone()                                   # (N, 3) m, left-camera frame, base -> tip
+    gt_world = tw.backbone(frame="world")
+    depth = tw.camera.depth_left()                       # metres, last grabbed frame
+
+Frames: "world" is the arm's (metres, z up, origin at the arm base); "camera" is the left
+camera's (OpenCV axes: x right, y down, z forward), the frame the estimator reports in.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from twin.camera import SimStereoCamera
+from twin.params import ArmParams
+from twin.physics import ArmSimulation
+from twin.rig import ConfigFileError, StereoRig, TableReader, integer, load_toml, number
+from twin.shape import ArmShape
+from twin.valves import SimValveBank
+
+DEFAULT_CONFIG = Path(__file__).resolve().parents[1] / "models" / "twin.toml"
+FRAMES = ("camera", "world")
+
+
+def _boolean(value) -> bool:
+    if not isinstance(value, bool):
+        raise TypeError(f"expected true or false, got {value!r}")
+    return value
+
+
+def _file(base: Path):
+    def convert(value) -> Path:
+        if not isinstance(value, str) or not value.strip():
+            raise TypeError(f"expected a file name, got {value!r}")
+        path = Path(value)
+        return path if path.is_absolute() else base / path
+
+    return convert
+
+
+@dataclass(frozen=True)
+class TwinConfig:
+    """The contents of ``twin.toml`` (paths resolved against the file's folder).
+
+    Attributes:
+        arm: the arm parameter file.
+        camera: the stereo camera file.
+        timestep_s: MuJoCo integration step.
+        clamp_pressures: clamp out-of-range set-points instead of raising.
+        seed: sensor-noise seed.
+        tube_sides: vertices around the rendered tube.
+        backbone_points: points of the ground-truth backbone (>= 100).
+        source: the file read, if any.
+    """
+
+    arm: Path
+    camera: Path
+    timestep_s: float = 0.002
+    clamp_pressures: bool = False
+    seed: int = 0
+    tube_sides: int = 48
+    backbone_points: int = 200
+    source: Path | None = None
+
+    @classmethod
+    def load(cls, path: str | Path) -> TwinConfig:
+        """Read ``twin.toml``.
+
+        Raises:
+            ConfigFileError: missing file, unknown or missing key, bad value; names file and key.
+        """
+        path = Path(path)
+        top = TableReader(path, load_toml(path, "twin"))
+        base = path.parent
+        arm = top.take("arm", _file(base))
+        camera = top.take("camera", _file(base))
+        physics = top.sub("physics")
+        timestep_s = physics.take("timestep_s", number(1e-5, 0.02), 0.002)
+        physics.done()
+        valves = top.sub("valves", required=False)
+        clamp = valves.take("clamp", _boolean, False) if valves else False
+        if valves:
+            valves.done()
+        render = top.sub("render", required=False)
+        seed = render.take("seed", integer(0, 2**63 - 1), 0) if render else 0
+        sides = render.take("tube_sides", integer(8, 512), 48) if render else 48
+        if render:
+            render.done()
+        truth = top.sub("truth", required=False)
+        points = truth.take("backbone_points", integer(100, 100_000), 200) if truth else 200
+        if truth:
+            truth.done()
+        top.done()
+        for key, file in (("arm", arm), ("camera", camera)):
+            if not file.is_file():
+                raise ConfigFileError(f"{path}: key {key}: file {file} not found")
+        return cls(arm, camera, timestep_s, clamp, seed, sides, points, path)
+
+
+class Twin:
+    """The digital twin: simulated valves and stereo camera on a MuJoCo arm, with exact truth.
+
+    Both devices are connected on construction (``tw.valves.set_pressures`` and
+    ``tw.camera.grab()`` work at once); ``close()`` (or leaving a ``with`` block) vents the
+    valves and releases the renderer.
+
+    Args:
+        config: a :class:`TwinConfig`; ``None`` reads ``models/twin.toml``.
+
+    Raises:
+        ConfigFileError: twin.toml or camera.toml is malformed (names file and key).
+        ParamsFileError: the arm parameter file is malformed (names file and key).
+        RenderBackendError: no offscreen OpenGL (names the packages to install).
+    """
+
+    def __init__(self, config: TwinConfig | None = None) -> None:
+        self.config = config if config is not None else TwinConfig.load(DEFAULT_CONFIG)
+        c = self.config
+        self.params = ArmParams.load(c.arm)
+        self.rig = StereoRig.load(c.camera)
+        self.sim = ArmSimulation(self.params, timestep_s=c.timestep_s)
+        self.valves = SimValveBank(self.sim, clamp=c.clamp_pressures)
+        self.camera = SimStereoCamera(self.rig, self.shape, lambda: self.sim.time_s,
+                                      seed=c.seed, tube_sides=c.tube_sides)
+        self.valves.connect()
+        try:
+            self.camera.connect()
+        except BaseException:
+            self.valves.close()
+            raise
+
+    @classmethod
+    def from_config(cls, path: str | Path) -> Twin:
+        """A twin from another ``twin.toml``."""
+        return cls(TwinConfig.load(path))
+
+    # --- time ------------------------------------------------------------------------------------
+
+    @property
+    def time_s(self) -> float:
+        """Simulated time, seconds since construction (or ``reset()``)."""
+        return self.sim.time_s
+
+    def advance(self, duration_s: float) -> None:
+        """Run the physics for ``duration_s`` simulated seconds.
+
+        Raises:
+            SimulationError: the simulation went unstable (names the step).
+        """
+        self.sim.advance(duration_s)
+
+    def settle(self, **kwargs) -> bool:
+        """Run until the arm is static (see ``ArmSimulation.settle``); True if it came to rest."""
+        return self.sim.settle(**kwargs)
+
+    def reset(self) -> None:
+        """Back to rest at t = 0 with every valve vented."""
+        self.valves.vent()
+        self.sim.reset()
+
+    # --- truth ---------------------------------------------------------------------------------
+
+    def shape(self) -> ArmShape:
+        """The arm's current geometry (world frame), as the camera renders it."""
+        return self.sim.shape(self.config.backbone_points)
+
+    def backbone(self, frame: str = "camera", n_points: int | None = None) -> np.ndarray:
+        """The exact backbone now, base to tip, evenly spaced in arc length.
+
+        Args:
+            frame: "camera" (the left camera, OpenCV axes, as the estimator reports) or "world".
+            n_points: number of points (default ``backbone_points`` of twin.toml, >= 100).
+
+        Returns:
+            (N, 3) metres.
+        """
+        if frame not in FRAMES:
+            raise ValueError(f"frame: expected one of {', '.join(map(repr, FRAMES))}, got {frame!r}")
+        n = self.config.backbone_points if n_points is None else int(n_points)
+        if n < 2:
+            raise ValueError(f"n_points: expected at least 2, got {n}")
+        points_world = self.sim.backbone(n)
+        return points_world if frame == "world" else self.rig.world_to_left_camera(points_world)
+
+    # --- lifetime --------------------------------------------------------------------------------
+
+    def close(self) -> None:
+        """Vent the valves and release the camera; closing twice is harmless."""
+        try:
+            self.valves.close()
+        finally:
+            self.camera.close()
+
+    def __enter__(self) -> Twin:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
