@@ -75,6 +75,15 @@ class EstimatorConfig:
         extend_ends: extend both ends to where the silhouette ends, corrected for the end-cap
             geometry using ``arm_radius_m``.
         arm_radius_m: tube radius, used for the end-cap correction and plausibility checks.
+        arm_length_m: nominal arm length; an estimate shorter than ``min_length_fraction`` of it
+            means part of the arm is hidden (folded behind itself, out of view): invalid.
+            None disables the check.
+        min_length_fraction: see ``arm_length_m``.
+        max_gap_widths: a stretch longer than this many arm widths without a clean silhouette
+            chord (baseplates hide about one) means parts overlap or are occluded: invalid.
+        max_width_ratio: a single tube's apparent width is 2 r / B times its disparity; a
+            silhouette wider than this factor times that along ``max_wide_fraction`` of the arm
+            holds two overlapping parts: invalid (default mode).
         compensation: misalignment compensation: "nearest" (the paper: cubic spline on the right
             nodes, the crossing of the left row nearest the node), "windowed" (crossings only near
             the same arc length, disparity interpolated where the curve runs along the rows), "none".
@@ -113,11 +122,16 @@ class EstimatorConfig:
     medial_refinement: bool | None = None
     extend_ends: bool | None = None
     arm_radius_m: float = 0.025
+    arm_length_m: float | None = 0.685
     compensation: str | None = None
     smoothing_degree: int | None = None
     roi: bool | None = None
     roi_margin_px: int = 48
     max_self_approach: float = 0.8
+    max_gap_widths: float = 2.0
+    min_length_fraction: float = 0.7
+    max_width_ratio: float = 1.35
+    max_wide_fraction: float = 0.08
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -154,6 +168,13 @@ class EstimatorConfig:
         _check(_int(self.smoothing_degree) and 0 <= self.smoothing_degree <= 12, "smoothing_degree",
                "an integer in [0, 12]", self.smoothing_degree)
         _check(0 <= self.max_self_approach < 5, "max_self_approach", "a fraction in [0, 5)", self.max_self_approach)
+        _check(self.arm_length_m is None or self.arm_length_m > 0, "arm_length_m", "a positive length or None",
+               self.arm_length_m)
+        _check(0 <= self.min_length_fraction < 1, "min_length_fraction", "a fraction in [0, 1)",
+               self.min_length_fraction)
+        _check(self.max_gap_widths > 0, "max_gap_widths", "a positive number", self.max_gap_widths)
+        _check(self.max_width_ratio > 1, "max_width_ratio", "a ratio above 1", self.max_width_ratio)
+        _check(0 < self.max_wide_fraction <= 1, "max_wide_fraction", "a fraction in (0, 1]", self.max_wide_fraction)
         if self.base_pixel is not None:
             bp = tuple(self.base_pixel)
             _check(len(bp) == 2 and all(isinstance(v, int | float) for v in bp), "base_pixel", "(u, v) pixels",

@@ -3,6 +3,7 @@ and the paper's own comparison with depth-camera points Q' (section 5.3)."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from estimator.calibration import StereoCalibration
@@ -86,7 +87,8 @@ def score_against_backbone(points: np.ndarray, backbone: np.ndarray) -> dict[str
     }
 
 
-def depth_camera_points(uv_left_raw: np.ndarray, depth_left_m: np.ndarray, calibration: StereoCalibration) -> np.ndarray:
+def depth_camera_points(uv_left_raw: np.ndarray, depth_left_m: np.ndarray,
+                        calibration: StereoCalibration) -> np.ndarray:
     """Q' of section 5.3: back-project left-image pixels with a depth map (Q'_j = g(u_Lj, v_Lj)).
 
     Args:
@@ -107,8 +109,6 @@ def depth_camera_points(uv_left_raw: np.ndarray, depth_left_m: np.ndarray, calib
     rows = np.clip(np.round(uv[:, 1]).astype(int), 0, h - 1)
     z = depth_left_m[rows, cols].astype(np.float64)
     z = np.where(np.isfinite(z) & (z > 0), z, np.nan)
-    import cv2
-
     rays = cv2.undistortPoints(uv.reshape(-1, 1, 2), calibration.K_left, calibration.dist_left.reshape(1, -1))
     rays = rays.reshape(-1, 2)
     return np.column_stack([rays[:, 0] * z, rays[:, 1] * z, z])

@@ -13,7 +13,9 @@ geometry.
 
 from __future__ import annotations
 
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
@@ -25,9 +27,16 @@ from estimator.clustering import competitive_learning, kmeans_plus_plus, order_g
 from estimator.config import EstimatorConfig
 from estimator.correspondence import compensate_nodes, match_rows
 from estimator.refinement import Centerline2D, refine_centerline
-from estimator.segmentation import arm_mask, bounding_box, contour_points, has_holes, hsv_mask, mask_points, \
-    remove_small_regions
-from estimator.skeleton import arm_width_px, ordered_skeleton_path, resample_polyline, thinning_centerline
+from estimator.segmentation import (
+    arm_mask,
+    bounding_box,
+    contour_points,
+    has_holes,
+    hsv_mask,
+    mask_points,
+    remove_small_regions,
+)
+from estimator.skeleton import ordered_skeleton_path, resample_polyline, thinning_centerline
 from estimator.smoothing import polynomial_smooth, robust_spline_profile
 from estimator.som import linear_init, som_batch, som_online
 from estimator.triangulation import triangulate
@@ -46,7 +55,8 @@ class EstimateResult:
             (0, 3) when not valid.
         valid: False when no trustworthy centerline was found; ``reason`` says why.
         left_uv, right_uv: (n, 2) the 2D centerlines in raw pixel coordinates.
-        timings_ms: milliseconds per stage and in total.
+        timings_ms: milliseconds per stage (summed over both images, which are processed in
+            parallel) and ``total`` (wall-clock time of the call).
         nodes_rect: side -> (n, 2) 2D centerline nodes in rectified pixels (for eqs. 9-11).
         misalignment_px: eq. (11) between the left and right nodes before compensation.
     """
@@ -61,7 +71,7 @@ class EstimateResult:
     misalignment_px: float = float("nan")
 
 
-class _NoArm(Exception):
+class _NoArmError(Exception):
     """A frame without a trustworthy centerline; the message becomes ``EstimateResult.reason``."""
 
 
@@ -123,14 +133,13 @@ class CenterlineEstimator:
         timings: dict[str, float] = {}
         start = time.perf_counter()
         try:
-            sides = {side: self._process_side(image, side, timings)
-                     for side, image in (("left", left_bgr), ("right", right_bgr))}
+            sides = self._process_both(left_bgr, right_bgr, timings)
             self._orient_right_like_left(sides)
             if self.config.mode == "paper" or sides["left"].curve is None or sides["right"].curve is None:
                 points, uv_left_rect, uv_right_rect = self._reconstruct_nodes(sides, timings)
             else:
                 points, uv_left_rect, uv_right_rect = self._reconstruct_dense(sides, timings)
-        except _NoArm as e:
+        except _NoArmError as e:
             timings["total"] = (time.perf_counter() - start) * 1e3
             empty2 = np.zeros((0, 2))
             return EstimateResult(np.zeros((0, 3)), False, str(e), empty2, empty2, timings)
@@ -145,6 +154,21 @@ class CenterlineEstimator:
         return EstimateResult(points, True, "", left_uv, right_uv, timings, nodes, misalignment)
 
     # --- per image ----------------------------------------------------------------------
+
+    def _process_both(self, left_bgr: np.ndarray, right_bgr: np.ndarray, timings: dict) -> dict[str, _Side]:
+        """Both images at once: the right one on a worker thread (OpenCV and the compiled
+        stages release the GIL), the left one here. Stage timings add up both images."""
+        right_timings: dict[str, float] = {}
+        future = _worker().submit(self._process_side, right_bgr, "right", right_timings)
+        try:
+            left = self._process_side(left_bgr, "left", timings)
+        finally:
+            right = future.exception() or future.result()  # always wait: the worker shares state
+        for stage, ms in right_timings.items():
+            timings[stage] = timings.get(stage, 0.0) + ms
+        if isinstance(right, BaseException):
+            raise right
+        return {"left": left, "right": right}
 
     def _check_image(self, name: str, image) -> None:
         w, h = self.calibration.image_size
@@ -161,25 +185,25 @@ class CenterlineEstimator:
         with _timed(timings, "rectify"):
             roi = self._find_roi(image, side) if cfg.roi else (0, 0, *self._rect.size)
             if roi is None:
-                raise _NoArm(f"no arm found in the {side} image")
+                raise _NoArmError(f"no arm found in the {side} image")
             crop = self._rect.rectify_image(image, side, roi)
         with _timed(timings, "segment"):
             mask = arm_mask(crop, cfg)
             if not mask.any():
-                raise _NoArm(f"no arm found in the {side} image")
+                raise _NoArmError(f"no arm found in the {side} image")
             offset = np.array(roi[:2], dtype=np.float64)
             if has_holes(mask, cfg.min_area_px):
-                raise _NoArm(f"self-overlap in the {side} image: the silhouette encloses a loop")
+                raise _NoArmError(f"self-overlap in the {side} image: the silhouette encloses a loop")
             samples = (mask_points(mask, cfg.mask_stride) if cfg.som_input == "mask"
                        else contour_points(mask, cfg.canny_low, cfg.canny_high, cfg.contour_step))
             if len(samples) < 3:
-                raise _NoArm(f"no arm found in the {side} image: only {len(samples)} arm samples")
+                raise _NoArmError(f"no arm found in the {side} image: only {len(samples)} arm samples")
         with _timed(timings, "centerline"):
             warm = self._warm[side]
             hint = self._base_hint - offset if (side == "left" and self._base_hint is not None) else None
             nodes = self._centerline(mask, samples, None if warm is None else warm - offset, hint)
             if len(nodes) < 3:
-                raise _NoArm(f"no centerline found in the {side} image")
+                raise _NoArmError(f"no centerline found in the {side} image")
             nodes = self._orient(nodes, hint, warm is not None)
         curve = None
         width = 0.0
@@ -187,8 +211,11 @@ class CenterlineEstimator:
             with _timed(timings, "refine"):
                 curve = refine_centerline(mask, nodes, extend_ends=cfg.extend_ends)
                 if curve is None:
-                    raise _NoArm(f"the {side} centerline does not follow the silhouette")
+                    raise _NoArmError(f"the {side} centerline does not follow the silhouette")
                 width = 2.0 * float(np.nanmedian(curve.half_width_px))
+                if curve.longest_unsupported_px() > cfg.max_gap_widths * width:
+                    raise _NoArmError(f"self-overlap or occlusion in the {side} image: "
+                                 f"{curve.longest_unsupported_px() / width:.1f} arm widths without a clean silhouette")
                 _check_self_approach(curve.points, width, cfg.max_self_approach, side)
                 curve = curve.shifted(offset)
                 nodes = resample_polyline(curve.points, cfg.n_points)
@@ -286,11 +313,12 @@ class CenterlineEstimator:
         with _timed(timings, "triangulate"):
             points_rect = triangulate(self._rect.P["left"], self._rect.P["right"], left, right)
             if np.any(points_rect[:, 2] <= 0):
-                raise _NoArm("triangulated points behind the camera: left and right centerlines disagree")
+                raise _NoArmError("triangulated points behind the camera: left and right centerlines disagree")
             points = self._rect.to_left_camera(points_rect)
         with _timed(timings, "smooth"):
             if cfg.smoothing_degree > 0:
                 points = polynomial_smooth(points, cfg.smoothing_degree)
+            self._check_length(points)
         return points, left, right
 
     def _reconstruct_dense(self, sides: dict[str, _Side], timings: dict):
@@ -302,12 +330,13 @@ class CenterlineEstimator:
             disparity, weight = match_rows(left.points, right.points, right_valid=right.valid)
             weight = np.where(left.valid, weight, 0.0)
             if np.count_nonzero(weight > 0.05) < max(8, len(tau) // 5):
-                raise _NoArm("left and right centerlines do not match row by row")
+                raise _NoArmError("left and right centerlines do not match row by row")
+            self._check_single_tube(disparity, weight, left)
             x, y, w = _with_width_cue(tau, disparity, weight, left)
             knots = int(np.clip(left.arc_px[-1] / 30.0, 3, 30))
             profile = robust_spline_profile(x, y, w, tau, knots=knots)
             if np.any(profile <= 0):
-                raise _NoArm("non-positive disparity: left and right centerlines disagree")
+                raise _NoArmError("non-positive disparity: left and right centerlines disagree")
         with _timed(timings, "triangulate"):
             dense = self._disparity_points(left.points, profile)
             if cfg.extend_ends:
@@ -318,11 +347,34 @@ class CenterlineEstimator:
         with _timed(timings, "smooth"):
             if cfg.smoothing_degree > 0:
                 dense = polynomial_smooth(dense, cfg.smoothing_degree)
+            self._check_length(dense)
             points_rect = resample_polyline(dense, cfg.n_points)
             points = self._rect.to_left_camera(points_rect)
             uv_l = _project_rect(self._rect.P["left"], points_rect)
             uv_r = _project_rect(self._rect.P["right"], points_rect)
         return points, uv_l, uv_r
+
+    def _check_single_tube(self, disparity: np.ndarray, weight: np.ndarray, left: Centerline2D) -> None:
+        """Raise when the silhouette is too wide for one tube at its depth: two parts overlap."""
+        cfg = self.config
+        good = (weight > 0.05) & np.isfinite(left.half_width_px) & (disparity > 0)
+        if np.count_nonzero(good) < 8:
+            return
+        expected = disparity[good] * 2.0 * cfg.arm_radius_m / self._rect.baseline_m
+        wide = float(np.mean(2.0 * left.half_width_px[good] / expected > cfg.max_width_ratio))
+        if wide > cfg.max_wide_fraction:
+            raise _NoArmError(f"self-overlap: along {wide:.0%} of the arm the silhouette is wider than one arm "
+                              f"of radius {cfg.arm_radius_m * 1e3:.0f} mm at that depth")
+
+    def _check_length(self, points: np.ndarray) -> None:
+        """Raise when the estimate is much shorter than the arm: part of it is hidden."""
+        cfg = self.config
+        if cfg.arm_length_m is None:
+            return
+        length = _polyline_length(points)
+        if length < cfg.min_length_fraction * cfg.arm_length_m:
+            raise _NoArmError(f"only {length * 1e3:.0f} mm of the {cfg.arm_length_m * 1e3:.0f} mm arm is visible "
+                         "(folded behind itself or out of view)")
 
     def _disparity_points(self, uv_left: np.ndarray, disparity: np.ndarray) -> np.ndarray:
         """(M, 3) rectified-frame points from left pixels and disparities (eqs. 7-8)."""
@@ -353,6 +405,19 @@ class CenterlineEstimator:
 # --- helpers ------------------------------------------------------------------------------
 
 
+_WORKER: ThreadPoolExecutor | None = None
+_WORKER_LOCK = threading.Lock()
+
+
+def _worker() -> ThreadPoolExecutor:
+    """One shared thread for the second image of every estimator in the process."""
+    global _WORKER
+    with _WORKER_LOCK:
+        if _WORKER is None:
+            _WORKER = ThreadPoolExecutor(max_workers=1, thread_name_prefix="estimator-right")
+        return _WORKER
+
+
 @contextmanager
 def _timed(timings: dict, stage: str):
     start = time.perf_counter()
@@ -376,7 +441,7 @@ def _check_self_approach(points: np.ndarray, width_px: float, fraction: float, s
     distance = np.linalg.norm(p[:, None] - p[None], axis=2)
     apart = np.abs(a[:, None] - a[None]) > 2.5 * width_px
     if np.any(apart & (distance < fraction * width_px)):
-        raise _NoArm(f"self-overlap in the {side} image: the centerline crosses or touches itself")
+        raise _NoArmError(f"self-overlap in the {side} image: the centerline crosses or touches itself")
 
 
 def _with_width_cue(tau: np.ndarray, disparity: np.ndarray, weight: np.ndarray, left: Centerline2D):

@@ -39,6 +39,15 @@ class Centerline2D:
     def shifted(self, offset: np.ndarray) -> Centerline2D:
         return Centerline2D(self.points + offset, self.valid, self.half_width_px, self.arc_px)
 
+    def longest_unsupported_px(self) -> float:
+        """Longest stretch without a clean silhouette chord (ends included), pixels of arc."""
+        edges = np.diff(np.concatenate([[1], self.valid.astype(np.int8), [1]]))
+        starts, stops = np.flatnonzero(edges == -1), np.flatnonzero(edges == 1)
+        if len(starts) == 0:
+            return 0.0
+        arc = np.append(self.arc_px, self.arc_px[-1])
+        return float(np.max(arc[stops] - arc[starts]))
+
 
 @numba.njit(cache=True, nogil=True)
 def _sample(mask, x, y):
@@ -200,8 +209,16 @@ def _full_width(arc: np.ndarray, half: np.ndarray, ok: np.ndarray, tolerance: fl
     window = 4.0 * typical  # two widths of arc
     lo = np.searchsorted(arc[idx], arc - window / 2)
     hi = np.searchsorted(arc[idx], arc + window / 2)
-    local = np.array([np.median(half[idx[a:b]]) if b > a else typical for a, b in zip(lo, hi, strict=True)])
+    local = _window_medians(half[idx], lo, hi, typical)
     return coarse & (np.abs(half - local) <= tolerance * local)
+
+
+@numba.njit(cache=True, nogil=True)
+def _window_medians(values, lo, hi, fallback):
+    out = np.empty(len(lo))
+    for i in range(len(lo)):
+        out[i] = np.median(values[lo[i]:hi[i]]) if hi[i] > lo[i] else fallback
+    return out
 
 
 def _away_from_gaps(ok: np.ndarray, arc: np.ndarray, half_width: float) -> np.ndarray:

@@ -16,7 +16,7 @@ import numpy as np
 _OFFSETS = ((-1, 0), (-1, 1), (0, 1), (1, 1), (1, 0), (1, -1), (0, -1), (-1, -1))  # p2..p9 clockwise
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _zhang_suen(image):
     img = image.copy()
     h, w = img.shape
@@ -49,10 +49,9 @@ def _zhang_suen(image):
                     + ((p8 == 0) & (p9 == 1)) + ((p9 == 0) & (p2 == 1))
                 if a != 1:
                     continue
-                if step == 0 and (p2 * p4 * p6 == 0) and (p4 * p6 * p8 == 0):
-                    marked[idx] = True
-                elif step == 1 and (p2 * p4 * p8 == 0) and (p2 * p6 * p8 == 0):
-                    marked[idx] = True
+                first = step == 0 and p2 * p4 * p6 == 0 and p4 * p6 * p8 == 0
+                second = step == 1 and p2 * p4 * p8 == 0 and p2 * p6 * p8 == 0
+                marked[idx] = first or second
             for idx in range(count):
                 if marked[idx]:
                     img[ys[idx], xs[idx]] = 0

@@ -107,7 +107,7 @@ def _tube_facets(points, radius, plate_s, s, sides=20, plate_radius=0.034, plate
             k2 = (k + 1) % sides
             quads.append([rings[i, k], rings[i, k2], rings[i + 1, k2], rings[i + 1, k]])
             colours.append(colour)
-    for i, sign in ((0, -1.0), (len(points) - 1, 1.0)):  # flat caps as fans of quads
+    for i in (0, len(points) - 1):  # flat caps as fans of quads
         for k in range(sides):
             k2 = (k + 1) % sides
             quads.append([points[i], rings[i, k], rings[i, k2], points[i]])
