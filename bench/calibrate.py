@@ -1,0 +1,181 @@
+"""``softarm calibrate``: stereo calibration from checkerboard views, on the twin or the rig.
+
+Sim: the twin renders a checkerboard held at a spread of poses through its raw camera path
+(distortion, noise), OpenCV calibrates from those images, and the result is printed beside
+the twin's true calibration, the one the images were rendered with.
+
+Rig: frames come from the configured camera while a person moves a real board in front of it;
+a frame is kept when the board is found in both images and has moved since the kept views;
+once enough views are in (or a recording ends, or Ctrl-C) the pair is calibrated. Only the
+camera is opened: nothing moves, so the valve board is left alone.
+
+Either way the calibration is written with ``StereoCalibration.save`` (TOML, OpenCV
+conventions), ready for ``[rig.camera] calibration = ...`` in the bench config.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from estimator import StereoCalibration
+from estimator.board_calibration import BoardCalibration, BoardSpec, calibrate_stereo, compare_calibrations, detect_pair
+
+DEFAULT_VIEWS = {"sim": 15, "rig": 20}
+# Accepted views of a hand-held board must differ: mean corner motion against every kept view.
+MIN_BOARD_MOTION_PX = 40.0
+# The twin's recovery targets (issue 3), printed as a verdict in sim.
+TARGETS = {"rms_px": 0.3, "baseline_mm": 0.5, "focal_pct": 0.5}
+
+
+def _board(args) -> BoardSpec:
+    """The board: 9 x 6 inner corners, 40 mm squares, unless the command line says otherwise."""
+    cols = getattr(args, "board_cols", None) or 9
+    rows = getattr(args, "board_rows", None) or 6
+    square_mm = getattr(args, "square_mm", None) or 40.0
+    return BoardSpec(int(cols), int(rows), float(square_mm) / 1000.0)
+
+
+def _out_path(args) -> Path:
+    if getattr(args, "out", None):
+        return Path(args.out)
+    return Path("runs") / f"calibration_{time.strftime('%Y-%m-%d_%H%M%S')}.toml"
+
+
+def _print_result(result: BoardCalibration, n_offered: int) -> None:
+    c = result.calibration
+    print(f"views used: {len(result.views)} of {n_offered}")
+    print(f"reprojection RMS: {result.rms_px:.3f} px (left alone {result.rms_left_px:.3f}, "
+          f"right alone {result.rms_right_px:.3f})")
+    worst = np.argsort(-result.per_view_rms_px.max(axis=1))[:3]
+    print("worst views (index: left, right px): " + ", ".join(
+        f"{result.views[i]}: {result.per_view_rms_px[i, 0]:.3f}, {result.per_view_rms_px[i, 1]:.3f}" for i in worst))
+    for side in ("left", "right"):
+        K, d = c.K(side), c.dist(side)
+        print(f"{side:5s}: fx {K[0, 0]:.2f} fy {K[1, 1]:.2f} cx {K[0, 2]:.2f} cy {K[1, 2]:.2f} px; "
+              f"dist {np.array2string(d, precision=5, separator=', ')}")
+    print(f"baseline {1000 * c.baseline_m:.3f} mm")
+
+
+def _print_comparison(estimated: StereoCalibration, reference: StereoCalibration, label: str) -> dict[str, float]:
+    diff = compare_calibrations(estimated, reference)
+    print(f"against {label}:")
+    print("  focal    " + "  ".join(f"{k.replace('_pct', '')} {v:+.3f} %" for k, v in diff.items() if k.endswith("_pct")))
+    print("  centre   " + "  ".join(f"{k.replace('_px', '')} {v:+.2f} px" for k, v in diff.items() if k.endswith("_px")))
+    print(f"  baseline {diff['baseline_mm']:+.3f} mm   rotation {diff['rotation_mrad']:.3f} mrad   "
+          f"T direction {diff['T_direction_mrad']:.3f} mrad")
+    return diff
+
+
+def _calibrate_sim(config, args, board: BoardSpec, n_views: int, out: Path) -> int:
+    from twin import Twin
+    from twin.checkerboard import board_poses, render_board_views
+
+    with Twin.from_config(config.sim.twin) as tw:
+        truth = tw.camera.calibration
+        poses = board_poses(tw.rig, board, n_views, seed=0)
+        print(f"rendering {n_views} board views ({board.inner_cols}x{board.inner_rows} inner corners, "
+              f"{1000 * board.square_m:g} mm squares) through the twin's camera ...")
+        views = render_board_views(tw.camera.renderer, board, poses)
+    corners = []
+    for i, v in enumerate(views):
+        corners.append(detect_pair(v.left, v.right, board))
+        print(f"\r  detecting corners: view {i + 1}/{n_views}", end="", flush=True)
+    print()
+    result = calibrate_stereo(None, board, truth.image_size, corners=corners)
+    result.calibration.save(out)
+    _print_result(result, n_views)
+    diff = _print_comparison(result.calibration, truth, "the twin's true calibration")
+    focal = max(abs(v) for k, v in diff.items() if k.endswith("_pct"))
+    ok = (result.rms_px < TARGETS["rms_px"] and abs(diff["baseline_mm"]) < TARGETS["baseline_mm"]
+          and focal < TARGETS["focal_pct"])
+    print(f"recovery targets (RMS < {TARGETS['rms_px']} px, baseline within {TARGETS['baseline_mm']} mm, focal within "
+          f"{TARGETS['focal_pct']} %): {'met' if ok else 'NOT met'}")
+    print(f"wrote {out}")
+    return 0
+
+
+def _nominal_calibration(resolution: str) -> StereoCalibration:
+    """A stand-in used only to open a ZED that has no calibration file yet (raw frames do not
+    depend on it): a ZED-like pinhole pair of the resolution's size."""
+    from hardware.zed import ZED_RESOLUTIONS
+
+    w, h = ZED_RESOLUTIONS[resolution]
+    K = np.array([[w * 0.55, 0, (w - 1) / 2], [0, w * 0.55, (h - 1) / 2], [0, 0, 1.0]])
+    return StereoCalibration(K, np.zeros(5), K, np.zeros(5), np.eye(3), np.array([-0.12, 0.0, 0.0]), (w, h))
+
+
+def _calibrate_rig(config, args, board: BoardSpec, n_views: int, out: Path) -> int:
+    from bench.factory import load_calibration
+    from estimator.calibration import CalibrationFileError
+    from hardware.errors import EndOfStreamError
+    from hardware.zed import ZedCamera
+
+    cam = config.rig.camera
+    try:
+        reference = load_calibration(cam.calibration, cam.resolution)
+    except CalibrationFileError as e:
+        print(f"note: no usable calibration to compare with ({e}); opening the camera without one")
+        reference = None
+    camera = ZedCamera(cam.source, reference or _nominal_calibration(cam.resolution), cam.resolution, cam.fps)
+    kept: list[tuple[np.ndarray, np.ndarray]] = []
+    seen = 0
+    print(f"move the board ({board.inner_cols}x{board.inner_rows} inner corners, {1000 * board.square_m:g} mm "
+          f"squares) slowly through the whole view, tilted and at several distances; Ctrl-C to stop early")
+    try:
+        camera.connect()
+        size = camera.calibration.image_size
+        while len(kept) < n_views:
+            try:
+                frame = camera.grab()
+            except EndOfStreamError:
+                break
+            seen += 1
+            found = detect_pair(frame.left, frame.right, board)
+            if found is None:
+                continue
+            if all(np.mean(np.linalg.norm(found[0] - k[0], axis=1)) > MIN_BOARD_MOTION_PX for k in kept):
+                kept.append(found)
+                print(f"\r  views kept: {len(kept)}/{n_views} (frames seen {seen})", end="", flush=True)
+    except KeyboardInterrupt:
+        print("\n  stopped by Ctrl-C", end="")
+    finally:
+        camera.close()
+    print()
+    try:
+        result = calibrate_stereo(None, board, size, corners=kept)
+    except ValueError as e:
+        print(f"softarm calibrate: {e}; frames seen: {seen}", file=sys.stderr)
+        return 1
+    result.calibration.save(out)
+    _print_result(result, len(kept))
+    if reference is not None:
+        _print_comparison(result.calibration, reference, f"the configured calibration {cam.calibration}")
+    print(f"wrote {out}; use it with [rig.camera] calibration = \"{out}\"")
+    return 0
+
+
+def calibrate_command(args) -> int:
+    """Entry point of ``softarm calibrate`` (arguments: config, backend, out, views)."""
+    from bench.config import ConfigError, load_bench_config
+
+    try:
+        config = load_bench_config(getattr(args, "config", None), backend=getattr(args, "backend", None))
+    except ConfigError as e:
+        print(f"softarm calibrate: {e}", file=sys.stderr)
+        return 2
+    n_views = getattr(args, "views", None) or DEFAULT_VIEWS[config.backend]
+    if n_views < 6:
+        print(f"softarm calibrate: --views {n_views}: at least 6 views are needed", file=sys.stderr)
+        return 2
+    board = _board(args)
+    out = _out_path(args)
+    if config.backend == "sim":
+        return _calibrate_sim(config, args, board, n_views, out)
+    if config.rig is None:
+        print(f"softarm calibrate: {config.path}: the rig backend needs a [rig.camera] section", file=sys.stderr)
+        return 2
+    return _calibrate_rig(config, args, board, n_views, out)
