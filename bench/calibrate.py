@@ -63,8 +63,10 @@ def _print_result(result: BoardCalibration, n_offered: int) -> None:
 def _print_comparison(estimated: StereoCalibration, reference: StereoCalibration, label: str) -> dict[str, float]:
     diff = compare_calibrations(estimated, reference)
     print(f"against {label}:")
-    print("  focal    " + "  ".join(f"{k.replace('_pct', '')} {v:+.3f} %" for k, v in diff.items() if k.endswith("_pct")))
-    print("  centre   " + "  ".join(f"{k.replace('_px', '')} {v:+.2f} px" for k, v in diff.items() if k.endswith("_px")))
+    focal = [f"{k.removesuffix('_pct')} {v:+.3f} %" for k, v in diff.items() if k.endswith("_pct")]
+    centre = [f"{k.removesuffix('_px')} {v:+.2f} px" for k, v in diff.items() if k.endswith("_px")]
+    print("  focal    " + "  ".join(focal))
+    print("  centre   " + "  ".join(centre))
     print(f"  baseline {diff['baseline_mm']:+.3f} mm   rotation {diff['rotation_mrad']:.3f} mrad   "
           f"T direction {diff['T_direction_mrad']:.3f} mrad")
     return diff
