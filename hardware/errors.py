@@ -11,3 +11,11 @@ class NotConnectedError(DeviceError):
 
 class LinkLostError(DeviceError, ConnectionError):
     """A device stopped answering; valves have been vented where possible."""
+
+
+class EStopError(DeviceError):
+    """The valve board's e-stop is latched: every valve is vented and set-points are refused."""
+
+
+class EndOfStreamError(DeviceError):
+    """A recorded camera source (video file or image folder) has no more frames."""

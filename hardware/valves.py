@@ -1,0 +1,425 @@
+"""Proportional valves behind a valve-driver board on a serial link (protocol: ``hardware/PROTOCOL.md``).
+
+Safety lives on both ends. Here: set-points are validated by ``ValveBank`` before they are
+encoded (and capped again at the millibar step), heartbeats keep the board's watchdog fed,
+every reply's status is checked, and the valves are vented on ``close()``, on an exception in
+the caller's ``with`` block, on SIGINT/SIGTERM and at interpreter exit. A link that stops
+answering, a watchdog vent or a latched e-stop is never silent: the next call raises.
+"""
+
+from __future__ import annotations
+
+import atexit
+import collections
+import contextlib
+import logging
+import os
+import signal
+import threading
+import time
+import weakref
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+import serial
+
+from hardware.errors import DeviceError, EStopError, LinkLostError, NotConnectedError
+from hardware.interfaces import ValveBank
+from hardware.protocol import (
+    ACK,
+    DEFAULT_BAUD,
+    NAK,
+    PROTOCOL_VERSION,
+    SEQ_MODULO,
+    BoardStatus,
+    BoardVersion,
+    Frame,
+    LineSplitter,
+    ProtocolError,
+    bar_to_mbar,
+    decode,
+    encode,
+)
+
+_log = logging.getLogger(__name__)
+
+
+class SerialValveBank(ValveBank):
+    """A ``ValveBank`` driving the valve-driver board over any pyserial port or URL.
+
+    Args:
+        port: a device (``/dev/ttyACM0``, ``/dev/serial/by-id/...``, a pty) or a pyserial URL
+            (``socket://host:port``, ``loop://``).
+        channels: valve names in command order, each on the board channel of its position; or a
+            mapping name -> board channel index (0-based, the position in the SET frame).
+            Board channels without a name are held at 0 bar.
+        max_pressure_bar: host-side limit; must not exceed the board's own limit.
+        baud: serial rate (ignored by URLs without one).
+        clamp: clamp out-of-range set-points to [0, max] with a warning instead of raising.
+        reply_timeout_s: how long to wait for each reply.
+        retries: extra attempts after a timeout or a corrupted exchange (bounded).
+        heartbeat_s: longest silence on the link; must stay well under the board's watchdog.
+
+    Raises:
+        ValueError: bad channel names or board channels, or non-positive timings.
+    """
+
+    def __init__(self, port: str, channels: Sequence[str] | Mapping[str, int], max_pressure_bar: float, *,
+                 baud: int = DEFAULT_BAUD, clamp: bool = False, reply_timeout_s: float = 0.05, retries: int = 2,
+                 heartbeat_s: float = 0.08) -> None:
+        names = list(channels)
+        super().__init__(names, max_pressure_bar, clamp)
+        board = [channels[n] for n in names] if isinstance(channels, Mapping) else list(range(len(names)))
+        for name, index in zip(names, board, strict=True):
+            if not isinstance(index, int) or isinstance(index, bool) or index < 0:
+                raise ValueError(f"channel {name}: board channel must be a non-negative integer, got {index!r}")
+        if len(set(board)) != len(board):
+            raise ValueError(f"channels: two names share a board channel in {dict(zip(names, board, strict=True))}")
+        if not (reply_timeout_s > 0 and heartbeat_s > 0 and isinstance(retries, int) and retries >= 0):
+            raise ValueError("reply_timeout_s and heartbeat_s must be positive and retries a non-negative integer")
+        self._port = str(port)
+        self._baud = int(baud)
+        self._board_channels = tuple(board)
+        self._reply_timeout_s = float(reply_timeout_s)
+        self._retries = retries
+        self._heartbeat_s = float(heartbeat_s)
+        self._serial: serial.SerialBase | None = None
+        self._lock = threading.Lock()  # one exchange at a time: caller, heartbeat, signal handler
+        self._lock_owner: int | None = None
+        self._seq = 0
+        self._splitter = LineSplitter()
+        self._lines: collections.deque[bytes] = collections.deque()
+        self._version: BoardVersion | None = None
+        self._status: BoardStatus | None = None
+        self._link_dead = False
+        self._fault: DeviceError | None = None  # why set-points are refused until reconnect / clear_estop
+        self._fault_reported = True
+        self._last_tx = 0.0
+        self._heartbeat_stop = threading.Event()
+        self._heartbeat: threading.Thread | None = None
+
+    def __repr__(self) -> str:
+        return f"SerialValveBank({self._port!r}, channels={list(self.channels)})"
+
+    # --- ValveBank ------------------------------------------------------------------------
+
+    @property
+    def is_connected(self) -> bool:
+        return self._serial is not None
+
+    def connect(self) -> None:
+        """Open the port, check the board's version and limits, vent, and start heartbeats.
+
+        Raises:
+            DeviceError: already connected, the port cannot be opened, or the board's protocol,
+                channel count or limit does not fit this bank.
+            LinkLostError (a ``ConnectionError``): the board did not answer.
+        """
+        if self.is_connected:
+            raise DeviceError(f"{self!r}: connect() while already connected")
+        try:
+            self._serial = serial.serial_for_url(self._port, baudrate=self._baud, timeout=self._reply_timeout_s,
+                                                 write_timeout=0.5)
+        except (serial.SerialException, ValueError, OSError) as e:
+            raise DeviceError(f"could not open valve port {self._port!r}: {e}; check [rig.valves] port "
+                              "(a device such as /dev/ttyACM0 or a pyserial URL) and that no other program "
+                              "holds it") from e
+        self._link_dead, self._fault, self._fault_reported = False, None, True
+        self._splitter, self._lines = LineSplitter(), collections.deque()
+        try:
+            self._serial.reset_input_buffer()
+            self._version = self._check_version(BoardVersion.parse(self._exchange("VER").args))
+            self._exchange("VENT", connecting=True)
+        except BaseException:
+            self._serial.close()
+            self._serial = None
+            raise
+        self._heartbeat_stop.clear()
+        self._heartbeat = threading.Thread(target=self._keep_alive, name=f"valves-heartbeat {self._port}",
+                                           daemon=True)
+        self._heartbeat.start()
+        _EMERGENCY_VENT.add(self)
+
+    def _apply(self, setpoints_bar: np.ndarray) -> None:
+        sent = [0] * self._version.channels
+        for board_channel, bar in zip(self._board_channels, setpoints_bar, strict=True):
+            sent[board_channel] = bar_to_mbar(float(bar), self.max_pressure_bar)  # the last check before the wire
+        status = BoardStatus.parse(self._exchange("SET", *sent, refuse_if_faulted=True).args)
+        tolerance_mbar = self._version.lsb_umbar / 2000.0 + 1.0
+        for name, board_channel in zip(self.channels, self._board_channels, strict=True):
+            applied = status.setpoints_mbar[board_channel]
+            if abs(applied - sent[board_channel]) > tolerance_mbar:
+                self.vent()
+                raise DeviceError(f"channel {name} (board channel {board_channel}): the board applied {applied} "
+                                  f"mbar instead of {sent[board_channel]} mbar; valves vented")
+
+    def _vent(self) -> None:
+        if self._link_dead:
+            self._blind_vent()
+        else:
+            self._exchange("VENT")
+        if self._fault is not None and not self._fault_reported:
+            self._fault_reported = True
+            raise type(self._fault)(str(self._fault)) from self._fault
+
+    def _disconnect(self) -> None:
+        _EMERGENCY_VENT.discard(self)
+        self._heartbeat_stop.set()
+        if self._heartbeat is not None and self._heartbeat is not threading.current_thread():
+            self._heartbeat.join(timeout=2.0)
+        self._heartbeat = None
+        ser, self._serial = self._serial, None
+        if ser is not None:
+            ser.close()
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        try:
+            self.close()
+        except DeviceError as close_error:
+            if exc is None:
+                raise
+            # Keep the caller's exception in front; the close failure rides along as a note.
+            _log.error("%r: %s", self, close_error)
+            exc.add_note(f"while venting {self!r}: {close_error}")
+
+    # --- board queries --------------------------------------------------------------------
+
+    @property
+    def port(self) -> str:
+        return self._port
+
+    @property
+    def baud(self) -> int:
+        return self._baud
+
+    @property
+    def board_channels(self) -> dict[str, int]:
+        """Board channel index of each valve name."""
+        return dict(zip(self.channels, self._board_channels, strict=True))
+
+    @property
+    def version(self) -> BoardVersion:
+        """The board's answer to VER at connect. Raises ``NotConnectedError`` before."""
+        if self._version is None or not self.is_connected:
+            raise NotConnectedError(f"{self!r}: version before connect()")
+        return self._version
+
+    def status(self) -> BoardStatus:
+        """Ask the board for its e-stop state, watchdog flag and applied set-points (sets nothing)."""
+        if not self.is_connected:
+            raise NotConnectedError(f"{self!r}: status() before connect()")
+        if self._link_dead:
+            self._raise_fault()
+        return BoardStatus.parse(self._exchange("STAT").args)
+
+    def clear_estop(self) -> None:
+        """Clear a latched e-stop (after the button was released); set-points restart from 0 bar.
+
+        Raises:
+            EStopError: the board still reports the e-stop (the button is held).
+        """
+        if not self.is_connected:
+            raise NotConnectedError(f"{self!r}: clear_estop() before connect()")
+        status = BoardStatus.parse(self._exchange("CLR", connecting=True).args)
+        if status.estop:
+            raise EStopError(f"{self!r}: the board still reports its e-stop; release it and try again")
+        if isinstance(self._fault, EStopError):
+            self._fault, self._fault_reported = None, True
+        self._setpoints_bar = np.zeros(len(self.channels))
+
+    # --- the link -------------------------------------------------------------------------
+
+    def _exchange(self, verb: str, *args: object, connecting: bool = False, refuse_if_faulted: bool = False) -> Frame:
+        with self._lock:
+            self._lock_owner = threading.get_ident()
+            try:
+                if refuse_if_faulted:  # checked under the lock: the heartbeat may have just recorded one
+                    self._raise_fault()
+                return self._exchange_locked(verb, args, connecting)
+            finally:
+                self._lock_owner = None
+
+    def _exchange_locked(self, verb: str, args: tuple, connecting: bool) -> Frame:
+        """Send one command and return its ACK, retrying a bounded number of times."""
+        ser = self._serial
+        if ser is None:
+            raise NotConnectedError(f"{self!r}: {verb} before connect()")
+        seq = self._next_seq()
+        frame = encode(seq, verb, *args)
+        attempts = 1 + self._retries
+        for _ in range(attempts):
+            try:
+                ser.write(frame)
+                self._last_tx = time.monotonic()
+                reply = self._await_reply(ser, seq)
+            except (serial.SerialException, OSError) as e:
+                raise self._lose_link(f"{self._port}: serial I/O failed during {verb}: {e}") from e
+            if reply is None or reply.seq is None:  # timeout, or the board could not read our frame
+                continue
+            if reply.verb == NAK:
+                reason = reply.args[0] if reply.args else "?"
+                if reason == "ESTOP":
+                    raise self._record(EStopError(f"{self!r}: the board refused {verb}: its e-stop is latched and "
+                                                  "every valve is vented; release it, then call clear_estop()"))
+                raise DeviceError(f"{self!r}: the board refused {verb} ({reason}); protocol mismatch?")
+            if verb != "VER":
+                self._check_status(BoardStatus.parse(reply.args), connecting)
+            return reply
+        hint = (f"check that the board is powered and flashed, the cable, the baud rate ({self._baud}) and "
+                "that no other program holds the port")
+        raise self._lose_link(f"the valve board on {self._port} did not answer {verb} ({attempts} attempts, "
+                              f"{self._reply_timeout_s * 1000:.0f} ms each): {hint}")
+
+    def _await_reply(self, ser: serial.SerialBase, seq: int) -> Frame | None:
+        deadline = time.monotonic() + self._reply_timeout_s
+        while True:
+            while self._lines:
+                try:
+                    reply = decode(self._lines.popleft())
+                except ProtocolError:
+                    continue  # line noise from the board's side; the checksum caught it
+                if reply.verb in (ACK, NAK) and (reply.seq == seq or reply.seq is None):
+                    return reply
+            if time.monotonic() >= deadline:
+                return None
+            self._lines.extend(self._splitter.feed(ser.read(max(1, ser.in_waiting))))
+
+    def _check_status(self, status: BoardStatus, connecting: bool) -> None:
+        self._status = status
+        if connecting:
+            return  # a watchdog vent or e-stop from before this session is not news
+        if status.watchdog_tripped:
+            raise self._record(LinkLostError(
+                f"{self!r}: the board's watchdog vented every valve: it received no frame for "
+                f"{self._version.watchdog_ms} ms (the host stalled or the link dropped); reconnect to continue"))
+        if status.estop and not isinstance(self._fault, EStopError):
+            raise self._record(EStopError(f"{self!r}: the board's e-stop is latched and every valve is vented; "
+                                          "release it, then call clear_estop()"))
+
+    def _check_version(self, version: BoardVersion) -> BoardVersion:
+        if version.protocol != PROTOCOL_VERSION:
+            raise DeviceError(f"valve board on {self._port} speaks protocol {version.protocol}, this host "
+                              f"speaks {PROTOCOL_VERSION}; update the firmware or the host")
+        if max(self._board_channels) >= version.channels:
+            raise DeviceError(f"valve board on {self._port} has {version.channels} channels; the channel map "
+                              f"uses board channel {max(self._board_channels)}")
+        if bar_to_mbar(self.max_pressure_bar, self.max_pressure_bar) > version.max_mbar:
+            raise DeviceError(f"max_pressure_bar {self.max_pressure_bar} exceeds the limit of the valve board on "
+                              f"{self._port} ({version.max_mbar / 1000} bar); lower it in the config")
+        if self._heartbeat_s * 2000.0 >= version.watchdog_ms:
+            raise DeviceError(f"heartbeat_s {self._heartbeat_s} is too slow for the board's "
+                              f"{version.watchdog_ms} ms watchdog; keep it under half of that")
+        return version
+
+    def _record(self, fault: DeviceError) -> DeviceError:
+        """Remember why set-points are refused, vent at once if the link works, and hand the error back."""
+        # Raised in the caller's thread it is reported; raised in the heartbeat thread, the next call reports it.
+        self._fault, self._fault_reported = fault, threading.current_thread() is not self._heartbeat
+        if not self._link_dead and self._serial is not None:
+            with contextlib.suppress(serial.SerialException, OSError):
+                self._serial.write(encode(self._next_seq(), "VENT"))
+        return fault
+
+    def _lose_link(self, message: str) -> LinkLostError:
+        self._link_dead = True
+        self._blind_vent()
+        return self._record(LinkLostError(message))
+
+    def _raise_fault(self) -> None:
+        if self._fault is not None:
+            self._fault_reported = True
+            raise type(self._fault)(str(self._fault)) from self._fault
+
+    def _blind_vent(self) -> None:
+        """Write a VENT without waiting for the answer (a dead link, or inside a signal handler).
+
+        The leading newline ends any frame this write interrupted, so the board NAKs that
+        fragment and still reads the VENT.
+        """
+        ser = self._serial
+        if ser is None:
+            return
+        try:
+            ser.write(b"\n" + encode(self._next_seq(), "VENT"))
+            ser.flush()
+        except (serial.SerialException, OSError):
+            pass
+
+    def _next_seq(self) -> int:
+        self._seq = (self._seq + 1) % SEQ_MODULO
+        return self._seq
+
+    def _keep_alive(self) -> None:
+        """Heartbeat thread: never let the link stay silent longer than ``heartbeat_s``."""
+        while not self._heartbeat_stop.wait(max(0.0, self._last_tx + self._heartbeat_s - time.monotonic())):
+            if self._link_dead:
+                return
+            if time.monotonic() - self._last_tx < self._heartbeat_s:
+                continue
+            try:
+                self._exchange("HB")
+            except DeviceError as e:
+                _log.error("%s", e)  # recorded as the bank's fault; the caller's next call raises it
+
+    def _emergency_vent(self) -> None:
+        """Vent from a signal handler or at exit: a full exchange when possible, else a blind write."""
+        if self._serial is None:
+            return
+        if self._lock_owner != threading.get_ident() and self._lock.acquire(timeout=0.3):
+            try:
+                self._exchange_locked("VENT", (), True)
+                return
+            except DeviceError:
+                pass
+            finally:
+                self._lock.release()
+        self._blind_vent()
+
+
+class _EmergencyVent:
+    """Vent every connected bank on SIGINT/SIGTERM (then chain to the previous handler) and at exit."""
+
+    _SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self._banks: weakref.WeakSet[SerialValveBank] = weakref.WeakSet()
+        self._previous: dict[int, object] = {}
+        atexit.register(self._at_exit)
+
+    def add(self, bank: SerialValveBank) -> None:
+        self._banks.add(bank)
+        if threading.current_thread() is not threading.main_thread():
+            return  # Python only lets the main thread install handlers; atexit still covers this bank
+        for signum in self._SIGNALS:
+            if signal.getsignal(signum) != self._on_signal:
+                self._previous[signum] = signal.getsignal(signum)
+                signal.signal(signum, self._on_signal)
+
+    def discard(self, bank: SerialValveBank) -> None:
+        self._banks.discard(bank)
+        if self._banks or threading.current_thread() is not threading.main_thread():
+            return
+        for signum, previous in list(self._previous.items()):
+            if signal.getsignal(signum) == self._on_signal:
+                signal.signal(signum, previous if previous is not None else signal.SIG_DFL)
+            del self._previous[signum]
+
+    def _on_signal(self, signum: int, frame) -> None:
+        for bank in list(self._banks):
+            bank._emergency_vent()
+        previous = self._previous.get(signum, signal.SIG_DFL)
+        if callable(previous):
+            previous(signum, frame)
+        elif previous != signal.SIG_IGN:  # default action: die of the same signal, as without us
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+
+    def _at_exit(self) -> None:
+        for bank in list(self._banks):
+            try:
+                bank.close()
+            except DeviceError as e:
+                _log.error("venting %r at exit: %s", bank, e)
+
+
+_EMERGENCY_VENT = _EmergencyVent()

@@ -1,0 +1,133 @@
+"""The emulated board's state machine (what firmware must do), directly and over its pty."""
+
+import time
+
+import numpy as np
+import pytest
+import serial
+
+from hardware.emulator import BoardEmulator, BoardStateMachine
+from hardware.protocol import BoardStatus, BoardVersion, decode, encode
+
+
+def ask(board, seq, verb, *args, now=0.0):
+    return decode(board.receive(encode(seq, verb, *args).rstrip(b"\n"), now))
+
+
+@pytest.fixture
+def board():
+    return BoardStateMachine(channels=3, max_pressure_bar=2.5, full_scale_bar=6.0, dac_bits=12, watchdog_ms=250)
+
+
+def test_version_reports_limits_and_resolution(board):
+    reply = ask(board, 1, "VER")
+    assert reply.seq == 1 and reply.verb == "ACK"
+    assert BoardVersion.parse(reply.args) == BoardVersion(1, "softarm-emu/0.1.0", 3, 2500, 1465, 250)
+
+
+def test_set_rounds_to_the_dac_step_and_clamps_to_the_board_limit(board):
+    status = BoardStatus.parse(ask(board, 2, "SET", 1234, 9000, 0).args)
+    lsb_mbar = 6000 / 4095
+    assert abs(board.setpoints_mbar[0] - 1234) <= lsb_mbar / 2
+    assert board.setpoints_mbar[0] == pytest.approx(round(1234 / lsb_mbar) * lsb_mbar)
+    assert board.setpoints_mbar[1] <= 2500 and board.setpoints_mbar[1] > 2500 - lsb_mbar
+    assert status.setpoints_mbar == tuple(round(v) for v in board.setpoints_mbar)
+
+
+@pytest.mark.parametrize(("verb", "args", "reason"), [
+    ("SET", (1, 2), "ARGS"), ("SET", (1, 2, "x"), "ARGS"), ("SET", (1, 2, 65536), "ARGS"),
+    ("SET", (1, 2, "-1"), "ARGS"),
+    ("HB", (1,), "ARGS"), ("FLY", (), "VERB"),
+])
+def test_bad_commands_are_nakked_with_their_sequence_number(board, verb, args, reason):
+    ask(board, 1, "SET", 100, 200, 300)
+    reply = ask(board, 5, verb, *args)
+    assert (reply.seq, reply.verb, reply.args) == (5, "NAK", (reason,))
+    np.testing.assert_allclose(board.setpoints_mbar, [100, 200, 300], atol=1)  # nothing changed
+
+
+@pytest.mark.parametrize("line", [b"hello", b"\xff\x00\xfe", b"$1 SET 1 2 3*0000", b"$ HB*1234", b"$?" + b" HB*27D3"])
+def test_garbage_is_nakked_without_a_sequence_number(board, line):
+    reply = decode(board.receive(line, 0.0))
+    assert reply.seq is None and reply.verb == "NAK" and reply.args[0] in ("FRAME", "CRC")
+
+
+def test_watchdog_vents_after_250_ms_without_a_valid_frame_and_reports_it_once(board):
+    ask(board, 1, "SET", 1000, 1000, 1000, now=10.0)
+    board.receive(b"garbage", 10.2)  # garbage does not feed the watchdog
+    board.tick(10.249)
+    assert np.all(board.setpoints_mbar > 0)
+    board.tick(10.251)
+    assert np.all(board.setpoints_mbar == 0) and board.watchdog_trips == 1
+    assert board.events[-1].kind == "vent" and board.events[-1].cause == "watchdog"
+    assert BoardStatus.parse(ask(board, 2, "HB", now=10.3).args).watchdog_tripped
+    assert not BoardStatus.parse(ask(board, 3, "HB", now=10.31).args).watchdog_tripped
+
+
+def test_heartbeats_keep_set_points(board):
+    ask(board, 1, "SET", 1000, 0, 0, now=0.0)
+    for i in range(1, 20):
+        ask(board, 1 + i, "HB", now=0.2 * i)
+        board.tick(0.2 * i + 0.1)
+    assert board.setpoints_mbar[0] > 999 and board.watchdog_trips == 0
+
+
+def test_estop_latches_until_cleared(board):
+    ask(board, 1, "SET", 1000, 1000, 1000)
+    board.press_estop(1.0)
+    assert np.all(board.setpoints_mbar == 0)
+    assert ask(board, 2, "SET", 500, 0, 0).args == ("ESTOP",)
+    assert BoardStatus.parse(ask(board, 3, "STAT").args).estop
+    assert BoardStatus.parse(ask(board, 4, "VENT").args).estop  # venting still works
+    assert not BoardStatus.parse(ask(board, 5, "CLR").args).estop
+    assert ask(board, 6, "SET", 500, 0, 0).verb == "ACK"
+    assert [(e.kind, e.cause) for e in board.events] == [
+        ("estop", "button"), ("vent", "estop"), ("vent", "VENT command"), ("clear", "CLR command")]
+
+
+def test_estop_command_latches_like_the_button(board):
+    assert BoardStatus.parse(ask(board, 1, "ESTOP").args).estop
+    assert ask(board, 2, "SET", 1, 1, 1).args == ("ESTOP",)
+
+
+def test_emulator_serves_the_state_machine_on_a_pty():
+    with BoardEmulator(channels=2, max_pressure_bar=2.5) as board:
+        link = serial.Serial(board.port, 115200, timeout=1.0)
+        try:
+            link.write(encode(1, "SET", 1500, 3000))
+            reply = decode(link.readline())
+            assert reply.seq == 1 and reply.verb == "ACK"
+            np.testing.assert_allclose(board.setpoints_bar, [1.5, 2.5], atol=board.lsb_bar)
+            assert board.setpoints_bar[1] <= 2.5
+            link.write(b"\x00\xffnot a frame\n")
+            assert decode(link.readline()).args == ("FRAME",)
+            link.write(b"x" * 500 + b"\n")  # overlong
+            assert decode(link.readline()).args == ("FRAME",)
+            link.write(encode(2, "STAT"))
+            assert BoardStatus.parse(decode(link.readline()).args).setpoints_mbar[0] == 1500
+            time.sleep(0.4)  # no heartbeat: the watchdog vents
+            np.testing.assert_array_equal(board.setpoints_bar, [0.0, 0.0])
+            assert board.watchdog_trips == 1 and board.naks_sent == 2
+        finally:
+            link.close()
+
+
+def test_cut_link_answers_nothing():
+    with BoardEmulator(channels=1) as board:
+        link = serial.Serial(board.port, timeout=0.2)
+        try:
+            board.cut_link()
+            link.write(encode(1, "VER"))
+            assert link.readline() == b""
+            board.restore_link()
+            link.write(encode(2, "VER"))
+            assert decode(link.readline()).seq == 2
+        finally:
+            link.close()
+
+
+def test_constructor_checks_its_arguments():
+    with pytest.raises(ValueError, match="channels"):
+        BoardStateMachine(channels=0)
+    with pytest.raises(ValueError, match="max_pressure_bar"):
+        BoardStateMachine(max_pressure_bar=7.0, full_scale_bar=6.0)
