@@ -1,0 +1,140 @@
+"""The Stereolabs factory-calibration parser on the real files and on the variants the issue lists."""
+
+import re
+
+import cv2
+import numpy as np
+import pytest
+
+from estimator import CalibrationFileError
+from hardware.zed import ZED_RESOLUTIONS, load_factory_calibration
+
+REAL_FILES = ["SN1010.conf", "SN1267.conf", "SN20292994.conf"]
+
+
+def rectified_row_mismatch_px(calib, seed=0):
+    """Project points 0.5-3 m ahead into both raw images; return |v_left - v_right| after rectification."""
+    rng = np.random.default_rng(seed)
+    points = np.column_stack([rng.uniform(-0.6, 0.6, 300), rng.uniform(-0.4, 0.4, 300), rng.uniform(0.5, 3.0, 300)])
+    w, h = calib.image_size
+    uv_left, uv_right = calib.project(points, "left"), calib.project(points, "right")
+    seen = np.all((uv_left >= 0) & (uv_left < (w, h)) & (uv_right >= 0) & (uv_right < (w, h)), axis=1)
+    assert seen.sum() > 100
+    rect = calib.rectification
+    left, right = rect.rectify_points(uv_left[seen], "left"), rect.rectify_points(uv_right[seen], "right")
+    return np.abs(left[:, 1] - right[:, 1]), left[:, 0] - right[:, 0], points[seen]
+
+
+@pytest.mark.parametrize("name", REAL_FILES)
+@pytest.mark.parametrize("resolution", ["HD", "FHD", "2K", "VGA"])
+def test_real_files_rectify_synthetic_points_onto_equal_rows(zed_conf_dir, name, resolution):
+    calib = load_factory_calibration(zed_conf_dir / name, resolution)
+    assert calib.image_size == ZED_RESOLUTIONS[resolution]
+    rows, disparity, points = rectified_row_mismatch_px(calib)
+    assert rows.max() < 0.01
+    # The right eye sits to the right: positive disparity f B / Z, B the file's baseline.
+    rect = calib.rectification
+    assert rect.baseline_m == pytest.approx(calib.baseline_m, rel=1e-9)
+    np.testing.assert_allclose(disparity, rect.focal_px * rect.baseline_m / rect.from_left_camera(points)[:, 2],
+                               rtol=1e-6)
+
+
+def test_sn1010_hd_values_are_read_as_the_file_states(zed_conf_dir):
+    calib = load_factory_calibration(zed_conf_dir / "SN1010.conf", "HD")
+    np.testing.assert_allclose(calib.K_left, [[700.895, 0, 665.54], [0, 700.895, 371.155], [0, 0, 1]])
+    np.testing.assert_allclose(calib.K_right, [[699.05, 0, 639.74], [0, 699.05, 374.974], [0, 0, 1]])
+    np.testing.assert_allclose(calib.dist_left, [-0.175995, 0.0265533, 0, 0, 0])
+    np.testing.assert_allclose(calib.dist_right, [-0.175152, 0.0267266, 0, 0, 0])
+    np.testing.assert_allclose(cv2.Rodrigues(calib.R)[0].ravel(), [0.00612931, 0.006799, -0.00194124], rtol=1e-9)
+    np.testing.assert_allclose(calib.T, [-0.12, 0.0, 0.0])
+
+
+def test_newer_file_uses_unsuffixed_ty_tz_and_ignores_disto_sections(zed_conf_dir):
+    calib = load_factory_calibration(zed_conf_dir / "SN20292994.conf", "HD")
+    np.testing.assert_allclose(calib.T, [-0.120023, 0.0349145e-3, 0.0344261e-3])
+    # The per-resolution k1..k3 terms, not [LEFT_DISTO] (k1=13.8851 there).
+    np.testing.assert_allclose(calib.dist_left, [-0.0620423, 0.0355664, -2.4591e-06, -0.000245264, -0.0129101])
+
+
+def test_file_without_ty_tz_has_them_zero(zed_conf_dir):
+    calib = load_factory_calibration(zed_conf_dir / "SN1267.conf", "VGA")
+    np.testing.assert_allclose(calib.T, [-0.12, 0.0, 0.0])
+    assert calib.K_left[0, 0] == pytest.approx(350.179)
+
+
+# --- generated variants -------------------------------------------------------------------
+
+
+def variant(zed_conf_dir, tmp_path, edit, name="SN1010.conf", encoding="utf-8"):
+    text = (zed_conf_dir / name).read_text()
+    path = tmp_path / "variant.conf"
+    path.write_text(edit(text), encoding=encoding)
+    return path
+
+
+def test_bom_spaces_around_equals_and_key_case_are_tolerated(zed_conf_dir, tmp_path):
+    def messy(text):
+        text = re.sub(r"^(\w+)=", lambda m: f"  {m.group(1).upper()} =  ", text, flags=re.M)
+        return text.replace("[STEREO]", "[stereo]")
+
+    path = variant(zed_conf_dir, tmp_path, messy, encoding="utf-8-sig")
+    assert path.read_bytes().startswith(b"\xef\xbb\xbf")
+    reference = load_factory_calibration(zed_conf_dir / "SN1010.conf", "HD")
+    calib = load_factory_calibration(path, "HD")
+    for attribute in ("K_left", "K_right", "dist_left", "dist_right", "R", "T"):
+        np.testing.assert_array_equal(getattr(calib, attribute), getattr(reference, attribute))
+
+
+def test_old_baseline_spelling(zed_conf_dir, tmp_path):
+    path = variant(zed_conf_dir, tmp_path, lambda t: t.replace("Baseline=120", "BaseLine=118.5"))
+    assert load_factory_calibration(path, "HD").T[0] == pytest.approx(-0.1185)
+
+
+def test_suffixed_ty_tz_of_the_chosen_resolution_win(zed_conf_dir, tmp_path):
+    path = variant(zed_conf_dir, tmp_path, lambda t: t.replace("TY=0\nTZ=0", "TY_HD=0.5\nTZ_HD=-0.25\nTY_VGA=9"))
+    np.testing.assert_allclose(load_factory_calibration(path, "HD").T, [-0.12, -0.0005, 0.00025])
+
+
+def test_missing_distortion_terms_default_to_zero(zed_conf_dir, tmp_path):
+    path = variant(zed_conf_dir, tmp_path, lambda t: re.sub(r"^(k2|k3|p1|p2)=.*\n", "", t, flags=re.M))
+    calib = load_factory_calibration(path, "HD")
+    np.testing.assert_allclose(calib.dist_left, [-0.175995, 0, 0, 0, 0])
+
+
+@pytest.mark.parametrize(("remove", "section", "key"), [
+    (r"^\[RIGHT_CAM_HD\]\n(.*\n){9}", "RIGHT_CAM_HD", None),
+    (r"(?<=\[LEFT_CAM_HD\]\n)fx=.*\n", "LEFT_CAM_HD", "fx"),
+    (r"^CV_HD=.*\n", "STEREO", "CV_HD"),
+    (r"^Baseline=.*\n", "STEREO", "Baseline"),
+])
+def test_missing_section_or_key_names_file_section_and_key(zed_conf_dir, tmp_path, remove, section, key):
+    path = variant(zed_conf_dir, tmp_path, lambda t: re.sub(remove, "", t, count=1, flags=re.M))
+    with pytest.raises(CalibrationFileError) as error:
+        load_factory_calibration(path, "HD")
+    message = str(error.value)
+    assert str(path) in message and f"[{section}]" in message
+    if key is not None:
+        assert key in message
+
+
+def test_a_missing_key_of_another_resolution_does_not_matter(zed_conf_dir, tmp_path):
+    path = variant(zed_conf_dir, tmp_path, lambda t: re.sub(r"^CV_2K=.*\n", "", t, flags=re.M))
+    load_factory_calibration(path, "HD")
+
+
+def test_bad_number_and_bad_file_are_named(zed_conf_dir, tmp_path):
+    path = variant(zed_conf_dir, tmp_path, lambda t: t.replace("RZ_HD=-0.00194124", "RZ_HD=-0,0019"))
+    with pytest.raises(CalibrationFileError, match=r"\[STEREO\] RZ_HD: '-0,0019' is not a finite number"):
+        load_factory_calibration(path, "HD")
+    with pytest.raises(CalibrationFileError, match="not found"):
+        load_factory_calibration(tmp_path / "SN0.conf")
+    junk = tmp_path / "junk.conf"
+    junk.write_text("not an ini file\n")
+    with pytest.raises(CalibrationFileError, match="line 1"):
+        load_factory_calibration(junk)
+
+
+def test_unknown_resolution_lists_the_allowed_ones(zed_conf_dir):
+    with pytest.raises(ValueError, match="2K, FHD, HD, VGA"):
+        load_factory_calibration(zed_conf_dir / "SN1010.conf", "4K")
+    assert load_factory_calibration(zed_conf_dir / "SN1010.conf", "hd720").image_size == (1280, 720)
