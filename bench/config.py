@@ -1,0 +1,347 @@
+"""The bench configuration: one TOML file, a frozen dataclass per section, one generic loader.
+
+``load_bench_config`` reads ``models/bench.toml`` (or a given file) into ``BenchConfig``. Every
+section is built by ``build_section``, which needs nothing but the dataclass: the field types
+say what each key may hold, ``__post_init__`` checks the values, and any unknown key, missing
+key, wrong type or bad value becomes a ``ConfigError`` naming the file and the key. To add a
+section, write its dataclass and add one field to ``BenchConfig``::
+
+    @dataclass(frozen=True)
+    class RecordingConfig:
+        out: Path = Path("../runs")      # relative paths resolve against the config's folder
+        lossless: bool = True
+
+    # in BenchConfig:
+    recording: RecordingConfig = field(default_factory=RecordingConfig)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import tomllib
+import types
+import typing
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from hardware.protocol import DEFAULT_BAUD
+from hardware.zed import ZED_FPS, resolution_name
+
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_CONFIG = REPO / "models" / "bench.toml"
+BACKENDS = ("sim", "rig")
+CALIBRATION_SUFFIXES = (".conf", ".toml")
+
+
+class ConfigError(ValueError):
+    """A config file is missing, not TOML, or has an unknown key or a bad value; names file and key."""
+
+
+# --- sections -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """``[sim]``: the digital twin.
+
+    Attributes:
+        twin: the twin's parameter file (resolved against the config's folder).
+    """
+
+    twin: Path = Path("twin.toml")
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """``[rig.camera]``: the ZED, or a recording standing in for it.
+
+    Attributes:
+        source: device index, device path (``/dev/v4l/by-id/...``), side-by-side video or image folder.
+        calibration: Stereolabs ``SN<serial>.conf`` or a softarm calibration ``.toml``.
+        resolution: ZED mode: "2K", "FHD", "HD" or "VGA".
+        fps: frame rate to request (a device), or to assume (an image folder).
+        loop: restart a video or folder at its end (trying the bench on a short recording).
+    """
+
+    source: int | Path
+    calibration: Path
+    resolution: str = "HD"
+    fps: float = 60
+    loop: bool = False
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "resolution", resolution_name(self.resolution))
+        if isinstance(self.source, int) and self.source < 0:
+            raise ValueError(f"source: a device index must be >= 0, got {self.source}")
+        if not (math.isfinite(self.fps) and self.fps > 0):
+            raise ValueError(f"fps: expected a positive frame rate, got {self.fps!r}")
+        if self.is_device and self.fps not in ZED_FPS[self.resolution]:
+            raise ValueError(f"fps: the ZED offers {', '.join(map(str, ZED_FPS[self.resolution]))} fps at "
+                             f"{self.resolution}, got {self.fps:g}")
+        if self.calibration.suffix.lower() not in CALIBRATION_SUFFIXES:
+            raise ValueError(f"calibration: expected a Stereolabs .conf or a softarm .toml file, got "
+                             f"{self.calibration.name!r}")
+
+    @property
+    def is_device(self) -> bool:
+        """True for a live camera (index or /dev path), False for a recording."""
+        return isinstance(self.source, int) or str(self.source).startswith("/dev/")
+
+
+@dataclass(frozen=True)
+class ValvesConfig:
+    """``[rig.valves]``: the valve-driver board.
+
+    Attributes:
+        port: serial device (``/dev/serial/by-id/...``) or pyserial URL (``socket://host:port``).
+        channels: valve name -> board channel index (0-based), in command order.
+        max_pressure_bar: host-side limit on every channel (the board enforces its own too).
+        baud: serial rate.
+        clamp: clamp out-of-range set-points with a warning instead of raising.
+    """
+
+    port: str
+    channels: Mapping[str, int]
+    max_pressure_bar: float = 2.5
+    baud: int = DEFAULT_BAUD
+    clamp: bool = False
+
+    def __post_init__(self) -> None:
+        if not self.port.strip():
+            raise ValueError("port: expected a serial device or pyserial URL, got an empty string")
+        if not (math.isfinite(self.max_pressure_bar) and self.max_pressure_bar > 0):
+            raise ValueError(f"max_pressure_bar: expected a positive pressure, got {self.max_pressure_bar!r}")
+        if self.baud <= 0:
+            raise ValueError(f"baud: expected a positive rate, got {self.baud}")
+        if not self.channels:
+            raise ValueError("channels: expected at least one 'name = board channel' entry")
+        for name, index in self.channels.items():
+            if index < 0:
+                raise ValueError(f"channels: {name} = {index}: board channels count from 0")
+        by_index: dict[int, str] = {}
+        for name, index in self.channels.items():
+            if index in by_index:
+                raise ValueError(f"channels: {by_index[index]} and {name} both use board channel {index}")
+            by_index[index] = name
+        object.__setattr__(self, "channels", types.MappingProxyType(dict(self.channels)))
+
+
+@dataclass(frozen=True)
+class RigConfig:
+    """``[rig]``: the physical devices."""
+
+    camera: CameraConfig
+    valves: ValvesConfig
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    """The whole file. ``path`` is the file it came from (not a key)."""
+
+    path: Path = field(default=DEFAULT_CONFIG, metadata={"from_file": False})
+    backend: Literal["sim", "rig"] = "sim"
+    sim: SimConfig = field(default_factory=SimConfig)
+    rig: RigConfig | None = None
+
+    def __post_init__(self) -> None:
+        if self.backend not in BACKENDS:
+            raise ValueError(f"backend: expected one of {', '.join(map(repr, BACKENDS))}, got {self.backend!r}")
+        if self.backend == "rig" and self.rig is None:
+            raise ValueError("rig: backend 'rig' needs a [rig] section with [rig.camera] and [rig.valves]")
+
+
+# --- loading ------------------------------------------------------------------------------
+
+
+def load_bench_config(path: str | Path | None = None, *, backend: str | None = None) -> BenchConfig:
+    """Read a bench config; relative paths inside it resolve against its folder.
+
+    Args:
+        path: the TOML file; None for ``models/bench.toml``.
+        backend: override the file's ``backend`` ("sim" or "rig").
+
+    Raises:
+        ConfigError: the file is missing or not TOML, or a key is unknown, missing, of the wrong
+            type or has a bad value; the message names the file and the key.
+    """
+    path = Path(path) if path is not None else DEFAULT_CONFIG
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError as e:
+        raise ConfigError(f"{path}: config file not found") from e
+    except (OSError, UnicodeDecodeError) as e:
+        raise ConfigError(f"{path}: cannot read the config file ({e})") from e
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"{path}: not valid TOML ({e})") from e
+    config = build_section(BenchConfig, data, path, context={"path": path.resolve()})
+    if backend is not None:
+        try:
+            config = dataclasses.replace(config, backend=backend)
+        except ValueError as e:
+            raise ConfigError(f"{path} with the backend override: {e}") from e
+    return config
+
+
+_T = typing.TypeVar("_T")
+
+
+def build_section(cls: type[_T], table: Any, path: Path, section: str = "", *,
+                  context: Mapping[str, Any] | None = None) -> _T:
+    """Build the frozen dataclass ``cls`` from a TOML table, checking every key against its fields.
+
+    Field types drive the conversion: ``bool``, ``int``, ``float`` (ints accepted), ``str``,
+    ``Path`` (relative paths resolve against ``path``'s folder, defaults included),
+    ``Literal[...]``, unions such as ``int | Path`` or ``X | None``, ``tuple[X, ...]``,
+    ``Mapping[str, X]`` and nested dataclasses (sub-tables, built recursively; a missing
+    sub-table takes the field's default, or is built from an empty table when there is none). Fields with
+    ``metadata={"from_file": False}`` are not keys; they come from ``context``.
+
+    Args:
+        cls: a dataclass whose ``__post_init__`` raises ``ValueError("<key>: <problem>")``.
+        table: the parsed TOML table.
+        path: the config file (for messages and relative paths).
+        section: dotted name of the table ("" for the top level, "rig.camera").
+        context: values of the fields that do not come from the file.
+
+    Raises:
+        ConfigError: an unknown key, a missing required key, a value of the wrong type, or a
+            value ``__post_init__`` rejects; the message names the file and the key.
+    """
+    where = _Where(path, section)
+    if not isinstance(table, dict):
+        raise where.error(None, f"expected a table, got {_describe(table)}")
+    hints = typing.get_type_hints(cls)
+    keys = {f.name: f for f in dataclasses.fields(cls) if f.init and f.metadata.get("from_file", True)}
+    for key in table:
+        if key not in keys:
+            close = difflib.get_close_matches(key, list(keys), n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            raise where.error(None, f"unknown key {where.name(key)}{hint} (known keys: {', '.join(keys) or 'none'})")
+    values = dict(context or {})
+    for name, f in keys.items():
+        hint = hints[name]
+        if name in table:
+            values[name] = _convert(table[name], hint, where, name)
+        elif f.default is not dataclasses.MISSING:
+            values[name] = _resolve_default(f.default, path)
+        elif f.default_factory is not dataclasses.MISSING:
+            values[name] = _resolve_default(f.default_factory(), path)
+        elif dataclasses.is_dataclass(hint):
+            values[name] = build_section(hint, {}, path, where.child(name))  # names its missing keys
+        else:
+            raise where.error(None, f"missing key {where.name(name)}")
+    try:
+        return cls(**values)
+    except ValueError as e:
+        raise where.error(None, _with_section(str(e), where)) from e
+
+
+@dataclass(frozen=True)
+class _Where:
+    path: Path
+    section: str
+
+    def name(self, key: str) -> str:
+        return f"[{self.section}] {key}" if self.section else key
+
+    def child(self, key: str) -> str:
+        return f"{self.section}.{key}" if self.section else key
+
+    def error(self, key: str | None, message: str) -> ConfigError:
+        return ConfigError(f"{self.path}: {self.name(key) + ': ' if key else ''}{message}")
+
+
+def _with_section(message: str, where: _Where) -> str:
+    """Prefix a ``__post_init__`` message's leading key with the section, e.g. "[rig.camera] fps: ..."."""
+    return f"[{where.section}] {message}" if where.section and not message.startswith("[") else message
+
+
+def _convert(value: Any, hint: Any, where: _Where, key: str) -> Any:
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        options = [a for a in args if a is not type(None)]
+        for option in options:  # the first option of the value's TOML type; its own errors stand
+            if _fits(value, option):
+                return _convert(value, option, where, key)
+        raise where.error(key, f"expected {' or '.join(map(_expected, options))}, got {_describe(value)}")
+    if not _fits(value, hint) or (hint is Path and not value):
+        raise where.error(key, f"expected {_expected(hint)}, got {_describe(value)}")
+    if dataclasses.is_dataclass(hint):
+        return build_section(hint, value, where.path, where.child(key))
+    if origin is tuple:
+        item = args[0] if args else Any
+        return tuple(_convert(v, item, where, f"{key}[{i}]") for i, v in enumerate(value))
+    if _is_mapping(hint):
+        item = args[1] if len(args) == 2 else Any
+        return {str(k): _convert(v, item, where, f"{key}.{k}") for k, v in value.items()}
+    if hint is float:
+        return float(value)
+    if hint is Path:
+        return _resolve(Path(value), where.path)
+    return value
+
+
+# TOML value types each scalar field type accepts (float takes integers too).
+_SCALARS = {bool: (bool,), int: (int,), float: (int, float), str: (str,), Path: (str,), Any: (object,)}
+
+
+def _fits(value: Any, hint: Any) -> bool:
+    """Whether a TOML value has the shape ``hint`` takes (before its contents are checked)."""
+    origin = typing.get_origin(hint)
+    if origin is Literal:
+        return value in typing.get_args(hint)
+    if dataclasses.is_dataclass(hint) or _is_mapping(hint):
+        return isinstance(value, dict)
+    if origin is tuple:
+        return isinstance(value, list)
+    if hint not in _SCALARS:
+        raise TypeError(f"build_section: the loader does not know the field type {hint!r}")
+    return isinstance(value, _SCALARS[hint]) and (hint is bool or not isinstance(value, bool))
+
+
+def _is_mapping(hint: Any) -> bool:
+    return typing.get_origin(hint) in (dict, Mapping) or hint in (dict, Mapping)
+
+
+def _expected(hint: Any) -> str:
+    if typing.get_origin(hint) is Literal:
+        return "one of " + ", ".join(map(repr, typing.get_args(hint)))
+    if dataclasses.is_dataclass(hint) or _is_mapping(hint):
+        return "a table"
+    if typing.get_origin(hint) is tuple:
+        return "an array"
+    return {bool: "true or false", int: "an integer", float: "a number", str: "a string",
+            Path: "a path string"}.get(hint, str(hint))
+
+
+def _resolve_default(value: Any, config_path: Path) -> Any:
+    """A field's default with its relative paths (nested sections' too) resolved like the file's."""
+    if isinstance(value, Path):
+        return _resolve(value, config_path)
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        changes = {}
+        for f in dataclasses.fields(value):
+            if f.init and f.metadata.get("from_file", True):
+                old = getattr(value, f.name)
+                new = _resolve_default(old, config_path)
+                if new is not old:
+                    changes[f.name] = new
+        return dataclasses.replace(value, **changes) if changes else value
+    return value
+
+
+def _resolve(value: Path, config_path: Path) -> Path:
+    value = value.expanduser()
+    return value if value.is_absolute() else (config_path.resolve().parent / value)
+
+
+def _describe(value: Any) -> str:
+    kinds = {bool: "a boolean", int: "an integer", float: "a number", str: "a string", list: "an array",
+             dict: "a table"}
+    return f"{value!r} ({kinds.get(type(value), type(value).__name__)})"
