@@ -15,6 +15,7 @@ OpenGL in BGR order (the lights are white, so channels never mix) and the images
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import time
@@ -39,8 +40,8 @@ _GAMMA = 2.2  # pyrender's shader writes colour ** (1 / 2.2)
 _DIELECTRIC_F0 = 0.04  # pyrender's diffuse colour is base * (1 - 0.04)
 
 EGL_HINT = ("install the EGL and Mesa OpenGL runtime, e.g. on Debian/Ubuntu "
-            "`apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri libgles2` (Mesa's llvmpipe renders on "
-            "the CPU), and keep PYOPENGL_PLATFORM=egl (set by twin before pyrender is imported)")
+            "`apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libopengl0` (Mesa's llvmpipe "
+            "renders on the CPU), and keep PYOPENGL_PLATFORM=egl (set by twin before pyrender is imported)")
 
 
 class RenderBackendError(RuntimeError):
@@ -86,13 +87,25 @@ class _Eye:
 
 
 def _eye_rays(K: np.ndarray, dist: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """(H, W) normalised undistorted coordinates x/z, y/z of the ray through every raw pixel."""
+    """(H, W) normalised undistorted coordinates x/z, y/z of the ray through every raw pixel
+    (read-only arrays, cached per camera: renderers of the same rig share them)."""
+    return _eye_rays_cached(np.asarray(K, np.float64).tobytes(), np.asarray(dist, np.float64).tobytes(),
+                            tuple(size))
+
+
+@functools.lru_cache(maxsize=8)
+def _eye_rays_cached(K_bytes: bytes, dist_bytes: bytes, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    K = np.frombuffer(K_bytes, np.float64).reshape(3, 3)
+    dist = np.frombuffer(dist_bytes, np.float64)
     w, h = size
     u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
     raw = np.stack([u.ravel(), v.ravel()], axis=1)
     xy = cv2.undistortPoints(raw.reshape(-1, 1, 2), K, dist.reshape(1, -1), criteria=_UNDISTORT_CRITERIA)
     xy = xy.reshape(h, w, 2)
-    return xy[..., 0], xy[..., 1]
+    x, y = np.ascontiguousarray(xy[..., 0]), np.ascontiguousarray(xy[..., 1])
+    x.setflags(write=False)
+    y.setflags(write=False)
+    return x, y
 
 
 def _noise_table(std_dn: float) -> np.ndarray:

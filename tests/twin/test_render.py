@@ -8,6 +8,9 @@ pyrender's own, sensor noise and the tube geometry.
 
 from __future__ import annotations
 
+import subprocess
+import sys
+import textwrap
 from pathlib import Path
 
 import cv2
@@ -287,3 +290,26 @@ def test_tube_surface_is_closed_and_points_outwards():
     a, b, c = (positions[faces[:, k]] for k in range(3))
     face_normals = np.cross(b - a, c - a)
     assert np.mean(np.sum(face_normals * normals[faces[:, 0]], 1) > 0) > 0.99
+
+
+def test_a_missing_egl_stack_names_the_packages_to_install():
+    """In a fresh interpreter whose dynamic loader cannot find libEGL/libGL, creating a renderer
+    fails with RenderBackendError naming the Debian packages."""
+    script = textwrap.dedent(f"""
+        import ctypes
+        real_init = ctypes.CDLL.__init__
+        def init(self, name, *args, **kwargs):
+            if name and any(lib in str(name) for lib in ("EGL", "libGL", "libOpenGL")):
+                raise OSError(f"{{name}}: cannot open shared object file: No such file or directory")
+            real_init(self, name, *args, **kwargs)
+        ctypes.CDLL.__init__ = init
+        from twin.render import RenderBackendError, StereoRenderer
+        from twin.rig import StereoRig
+        try:
+            StereoRenderer(StereoRig.load({str(CAMERA_TOML)!r}))
+        except RenderBackendError as e:
+            print("RenderBackendError:", e)
+    """)
+    result = subprocess.run([sys.executable, "-c", script], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert "RenderBackendError:" in result.stdout, result.stdout + result.stderr
+    assert "libegl1" in result.stdout and "libgl1-mesa-dri" in result.stdout

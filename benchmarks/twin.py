@@ -1,0 +1,93 @@
+"""Speed of the digital twin: physics real-time factor and stereo rendering time.
+
+    python benchmarks/twin.py [--frames 20]
+
+Prints the physics real-time factor (simulated seconds per wall-clock second while the arm
+moves under a pressure ramp), and the median time to render one raw 1280x720 stereo pair (both
+eyes, distortion, noise; with and without the left depth map) with its breakdown per stage.
+Targets (issue 3): physics >= 10x real time; a raw stereo pair <= 120 ms on a 2-core machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np  # noqa: E402
+
+from twin.params import ArmParams  # noqa: E402
+from twin.physics import ArmSimulation  # noqa: E402
+from twin.render import StereoRenderer  # noqa: E402
+from twin.rig import StereoRig  # noqa: E402
+from twin.twin import DEFAULT_CONFIG, TwinConfig  # noqa: E402
+
+
+def physics_rtf(config: TwinConfig, sim_seconds: float = 10.0) -> float:
+    """Real-time factor while every channel ramps 0 -> 2.5 bar, in 0.05 s advances."""
+    sim = ArmSimulation(ArmParams.load(config.arm), timestep_s=config.timestep_s)
+    n = len(sim.channels)
+    steps = int(round(sim_seconds / 0.05))
+    start = time.perf_counter()
+    for k in range(steps):
+        pressure = sim.max_pressure_bar * k / steps
+        sim.command(np.array([pressure if i % 2 == 0 else 0.3 * pressure for i in range(n)]))
+        sim.advance(0.05)
+    return sim_seconds / (time.perf_counter() - start)
+
+
+def render_times(config: TwinConfig, frames: int) -> dict[str, list[float]]:
+    """Per-frame wall times (s) of raw stereo pairs of a moving arm, by stage."""
+    rig = StereoRig.load(config.camera)
+    sim = ArmSimulation(ArmParams.load(config.arm), timestep_s=config.timestep_s)
+    shapes = []
+    for k in range(frames):
+        sim.command(np.full(len(sim.channels), 0.0) + np.eye(len(sim.channels))[k % 3] * 2.0)
+        sim.advance(0.2)
+        shapes.append(sim.shape(config.backbone_points))
+    times: dict[str, list[float]] = {"pair": [], "pair_no_depth": [], "scene": [], "gl_left": [], "gl_right": [],
+                                     "post": []}
+    with StereoRenderer(rig, seed=config.seed, tube_sides=config.tube_sides) as renderer:
+        print(f"canvas per eye {renderer.canvas_size[0]}x{renderer.canvas_size[1]} for "
+              f"{rig.image_size[0]}x{rig.image_size[1]} raw images")
+        renderer.render(shapes[0])  # warm-up: shader compilation, buffers
+        for shape in shapes:
+            start = time.perf_counter()
+            renderer.render(shape, depth=True)
+            times["pair"].append(time.perf_counter() - start)
+            for key in ("scene", "gl_left", "gl_right", "post"):
+                times[key].append(renderer.timings_s[key])
+            start = time.perf_counter()
+            renderer.render(shape, depth=False)
+            times["pair_no_depth"].append(time.perf_counter() - start)
+    return times
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=20, help="frames to time (median reported)")
+    parser.add_argument("--config", default=str(DEFAULT_CONFIG), help="twin.toml")
+    args = parser.parse_args(argv)
+    config = TwinConfig.load(args.config)
+    print(f"machine: {os.cpu_count()} CPUs; OpenGL through EGL (PYOPENGL_PLATFORM={os.environ['PYOPENGL_PLATFORM']})")
+    rtf = physics_rtf(config)
+    print(f"physics: {rtf:.1f}x real time (timestep {1000 * config.timestep_s:g} ms)   target >= 10x")
+    times = render_times(config, args.frames)
+    ms = {key: 1000 * statistics.median(values) for key, values in times.items()}
+    print(f"raw stereo pair with left depth: {ms['pair']:.1f} ms median over {args.frames} frames "
+          f"(max {1000 * max(times['pair']):.1f} ms)   target <= 120 ms")
+    print(f"raw stereo pair without depth:   {ms['pair_no_depth']:.1f} ms")
+    print(f"per 1280x720 view (pair without depth / 2): {ms['pair_no_depth'] / 2:.1f} ms")
+    print(f"  stages of a pair: scene update {ms['scene']:.1f} ms, OpenGL left (+ depth) {ms['gl_left']:.1f} ms, "
+          f"OpenGL right {ms['gl_right']:.1f} ms, distortion + noise + depth {ms['post']:.1f} ms")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
