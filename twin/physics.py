@@ -260,7 +260,7 @@ class ArmSimulation:
                               f"{self._problem(np.zeros_like(counts))}", step, step * m.opt.timestep)
 
     def _warning_counts(self) -> np.ndarray:
-        return np.array([w.number for w in self._data.warning])
+        return self._data.warning.number.copy()  # a view; iterating the stat objects costs 60 us
 
     def _problem(self, counts_before: np.ndarray) -> str | None:
         d, m = self._data, self._model
@@ -268,7 +268,7 @@ class ArmSimulation:
         if len(new):
             parts = []
             for w in new:
-                info = d.warning[w].lastinfo
+                info = int(d.warning.lastinfo[w])
                 where = f" (dof {info}: joint {m.joint(m.dof_jntid[info]).name})" \
                     if w in _DOF_WARNINGS and 0 <= info < m.nv else f" (info {info})"
                 parts.append(f"MuJoCo warning {_WARNING_NAMES.get(int(w), w)}{where}")
