@@ -7,6 +7,10 @@ lands on the ideal canvas, from ``cv2.undistortPoints``), followed by optical bl
 gain and sensor noise. The same :class:`~estimator.StereoCalibration` that builds the maps is
 the one the twin exposes, so projecting with it finds what was drawn.
 
+Surfaces are matte (Lambert + ambient, a small shader of our own instead of pyrender's PBR):
+linear colour = base colour x (ambient + directional x cos(angle to the light)), written with
+gamma 1/2.2, so a fully lit surface shows the configured display colour.
+
 Conventions: OpenCV pixel centres are at integer coordinates; OpenGL's are at i + 0.5, so the
 pinhole principal point handed to pyrender is the OpenCV one plus half a pixel. The ideal canvas
 is read bottom-up (OpenGL's row order) and the maps absorb the flip. Colours are handed to
@@ -15,9 +19,12 @@ OpenGL in BGR order (the lights are white, so channels never mix) and the images
 
 from __future__ import annotations
 
+import atexit
 import functools
 import math
 import os
+import shutil
+import tempfile
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -36,8 +43,63 @@ _ZNEAR_M, _ZFAR_M = 0.02, 20.0
 _CANVAS_MARGIN_PX = 3
 # undistortPoints iterates; its default 5 iterations leave ~0.1 px at the corners of a ZED.
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 60, 1e-12)
-_GAMMA = 2.2  # pyrender's shader writes colour ** (1 / 2.2)
-_DIELECTRIC_F0 = 0.04  # pyrender's diffuse colour is base * (1 - 0.04)
+_GAMMA = 2.2  # the fragment shader writes colour ** (1 / 2.2)
+_DIELECTRIC_F0 = 0.04  # pyrender's own PBR shader: diffuse colour = base * (1 - 0.04)
+
+# A matte (Lambert + ambient) fragment shader in place of pyrender's PBR one: no specular term,
+# so shading only scales a colour and hue and saturation stay exactly those of the material
+# (the estimator segments by HSV); it also halves the per-eye time on a CPU rasteriser.
+# Uniform and input names are pyrender's (mesh.vert feeds it; unused uniforms are skipped).
+_MATTE_FRAG = """#version 330 core
+struct DirectionalLight { vec3 color; float intensity; vec3 direction; };
+struct Material { vec3 emissive_factor; vec4 base_color_factor; float metallic_factor; float roughness_factor; };
+uniform Material material;
+uniform DirectionalLight directional_lights[MAX_DIRECTIONAL_LIGHTS];
+uniform int n_directional_lights;
+uniform vec3 ambient_light;
+in vec3 frag_position;
+#ifdef NORMAL_LOC
+in vec3 frag_normal;
+#endif
+out vec4 frag_color;
+void main()
+{
+    vec3 light = ambient_light;
+#ifdef NORMAL_LOC
+    vec3 n = normalize(frag_normal);
+    for (int i = 0; i < n_directional_lights; i++) {
+        float nl = max(dot(n, -normalize(directional_lights[i].direction)), 0.0);
+        light += directional_lights[i].color * directional_lights[i].intensity * nl;
+    }
+#endif
+    vec3 colour = clamp(material.base_color_factor.rgb * light, 0.0, 1.0);
+    frag_color = vec4(pow(colour, vec3(1.0 / 2.2)), 1.0);
+}
+"""
+_matte_path: str | None = None
+
+
+def _matte_shader_file() -> str:
+    """pyrender compiles shaders from files: write the matte shader once per process."""
+    global _matte_path
+    if _matte_path is None or not os.path.exists(_matte_path):
+        folder = tempfile.mkdtemp(prefix="softarm-twin-shaders-")
+        atexit.register(shutil.rmtree, folder, True)
+        path = os.path.join(folder, "matte.frag")
+        with open(path, "w") as f:
+            f.write(_MATTE_FRAG)
+        _matte_path = path
+    return _matte_path
+
+
+def _matte_program_cache(pyrender):
+    class MatteShaderCache(pyrender.shader_program.ShaderProgramCache):
+        def get_program(self, vertex_shader, fragment_shader, geometry_shader=None, defines=None):
+            if fragment_shader == "mesh.frag":
+                fragment_shader = _matte_shader_file()
+            return super().get_program(vertex_shader, fragment_shader, geometry_shader, defines)
+
+    return MatteShaderCache()
 
 EGL_HINT = ("install the EGL and Mesa OpenGL runtime, e.g. on Debian/Ubuntu "
             "`apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libopengl0` (Mesa's llvmpipe "
@@ -305,11 +367,8 @@ class StereoRenderer:
             camera = pyrender.IntrinsicsCamera(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2] + 0.5, cy=K[1, 2] + 0.5,
                                                znear=_ZNEAR_M, zfar=_ZFAR_M)
             self._camera_nodes[side] = self._scene.add(camera, pose=rig.T_world_cam_gl(side), name=f"cam_{side}")
-        # pyrender's Lambert term is radiance * 0.96 * cos / pi: scale so a surface facing the
-        # light gets ``directional`` of the full linear brightness.
-        intensity = look.directional * math.pi / (1.0 - _DIELECTRIC_F0)
-        light = pyrender.DirectionalLight(color=np.ones(3), intensity=intensity)
-        self._scene.add(light, pose=_pose_with_z(-np.asarray(look.light_direction_world), np.zeros(3)))
+        self._light = pyrender.DirectionalLight(color=np.ones(3), intensity=look.directional)
+        self._scene.add(self._light, pose=_pose_with_z(-np.asarray(look.light_direction_world), np.zeros(3)))
         self._arm_material = self._material(look.arm_rgb)
         self._plate_material = self._material(look.plate_rgb)
         self._tube_node = None
@@ -323,6 +382,11 @@ class StereoRenderer:
         except Exception as e:  # EGL missing devices/drivers surface as many exception types
             raise RenderBackendError(f"cannot create an offscreen EGL context ({type(e).__name__}: {e}); "
                                      f"{EGL_HINT}") from e
+        # Linear light = base * (ambient + directional * cos); see _MATTE_FRAG.
+        if hasattr(self._renderer._renderer, "_program_cache"):
+            self._renderer._renderer._program_cache = _matte_program_cache(pyrender)
+        else:  # pyrender's PBR shader: its Lambert term is radiance * 0.96 * cos / pi
+            self._light.intensity = look.directional * math.pi / (1.0 - _DIELECTRIC_F0)
         self._fast_readback = fast_readback and all(
             hasattr(self._renderer._renderer, a) for a in ("_main_fb", "_main_fb_ms", "_read_main_framebuffer"))
         if self._fast_readback:
@@ -513,11 +577,49 @@ class StereoRenderer:
         colour, z_m = self._renderer.render(self._scene)  # top-down, linear depth, 0 = background
         return np.ascontiguousarray(colour), np.ascontiguousarray(z_m), False
 
+    def _raw_roi(self, side: str) -> tuple[int, int, int, int] | None:
+        """(x0, y0, x1, y1) raw pixels whose rays land in this frame's drawn canvas rectangle.
+
+        Elsewhere the raw image is plain background. The distortion maps the rectangle's border
+        onto the border of its image (the map is one-to-one), so the border's bounding box holds
+        the whole region. None when no rectangle is known (pyrender's own read-back).
+        """
+        if not self._fast_readback:
+            return None
+        x, y_up, w, h = self._canvas[side][2]
+        height = self._canvas_size[1]
+        top = height - (y_up + h)  # top-down canvas rows
+        t = np.linspace(0.0, 1.0, 24)
+        xs = np.concatenate([x + t * w, x + t * w, np.full(24, x), np.full(24, x + w)]) - 0.5
+        ys = np.concatenate([np.full(24, top), np.full(24, top + h), top + t * h, top + t * h]) - 0.5
+        K = self._eyes[side].K_canvas
+        rays = np.column_stack([(xs - K[0, 2]) / K[0, 0], (ys - K[1, 2]) / K[1, 1], np.ones(len(xs))])
+        calib = self.rig.calibration
+        uv, _ = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), calib.K(side), calib.dist(side).reshape(1, -1))
+        uv = uv.reshape(-1, 2)
+        W, H = calib.image_size
+        x0 = int(np.clip(np.floor(uv[:, 0].min()) - 2, 0, W))
+        x1 = int(np.clip(np.ceil(uv[:, 0].max()) + 3, 0, W))
+        y0 = int(np.clip(np.floor(uv[:, 1].min()) - 2, 0, H))
+        y1 = int(np.clip(np.ceil(uv[:, 1].max()) + 3, 0, H))
+        return x0, y0, x1, y1
+
     def _to_raw(self, side: str, canvas: np.ndarray, bottom_up: bool) -> np.ndarray:
         eye = self._eyes[side]
         if not bottom_up:
             canvas = np.ascontiguousarray(canvas[::-1])
-        return cv2.remap(canvas, eye.map1, eye.map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        roi = self._raw_roi(side)
+        if roi is None:
+            return cv2.remap(canvas, eye.map1, eye.map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        # Only the region that can show something is resampled; the rest is background.
+        w, h = self.rig.image_size
+        out = np.empty((h, w, 3), np.uint8)
+        out[:] = self._background_px
+        x0, y0, x1, y1 = roi
+        if x1 > x0 and y1 > y0:
+            out[y0:y1, x0:x1] = cv2.remap(canvas, eye.map1[y0:y1, x0:x1], eye.map2[y0:y1, x0:x1],
+                                          cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        return out
 
     def _sensor(self, image: np.ndarray) -> np.ndarray:
         s = self.sensor
@@ -538,12 +640,19 @@ class StereoRenderer:
                           borderMode=cv2.BORDER_REPLICATE)
             z[z <= 0] = np.inf
             return z
-        d = cv2.remap(zbuf, eye.map1, eye.map2, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+        w, h = self.rig.image_size
+        z = np.full((h, w), np.inf, np.float32)
+        x0, y0, x1, y1 = self._raw_roi("left")
+        if x1 <= x0 or y1 <= y0:
+            return z
+        d = cv2.remap(zbuf, eye.map1[y0:y1, x0:x1], eye.map2[y0:y1, x0:x1], cv2.INTER_NEAREST,
+                      borderMode=cv2.BORDER_REPLICATE)
         n, f = _ZNEAR_M, _ZFAR_M
         with np.errstate(divide="ignore"):
-            z = (2.0 * n * f) / ((f + n) - (2.0 * d - 1.0) * (f - n))
-        z[d >= 1.0] = np.inf
-        return z.astype(np.float32, copy=False)
+            linear = (2.0 * n * f) / ((f + n) - (2.0 * d - 1.0) * (f - n))  # OpenGL depth -> camera z
+        linear[d >= 1.0] = np.inf
+        z[y0:y1, x0:x1] = linear
+        return z
 
     def render(self, shape: ArmShape | None, *, depth: bool = True, props: Sequence[Prop] = ()) -> StereoImages:
         """Render one raw stereo pair.
