@@ -85,8 +85,9 @@ class StereoCalibration:
         if np.linalg.norm(T) <= 0:
             raise ValueError("T: the baseline is zero")
         set_(self, "T", _frozen(T))
-        size = tuple(self.image_size)
-        if len(size) != 2 or any(int(v) != v or v <= 0 for v in size):
+        size = tuple(self.image_size) if isinstance(self.image_size, tuple | list | np.ndarray) else ()
+        integral = all(isinstance(v, int | float | np.integer | np.floating) and float(v).is_integer() for v in size)
+        if len(size) != 2 or not integral or min(size) <= 0:
             raise ValueError(f"image_size: expected (width, height) in pixels, got {self.image_size!r}")
         set_(self, "image_size", (int(size[0]), int(size[1])))
 

@@ -1,0 +1,110 @@
+"""CenterlineEstimator behaviour: the public API, bad input, warm state, invalid frames."""
+
+import numpy as np
+import pytest
+
+from estimator import CenterlineEstimator, EstimatorConfig
+from estimator.config import CENTERLINES
+from estimator.metrics import score_against_backbone
+from tests.scenes import folded_shape, render_scene, zed_like_calibration
+
+
+@pytest.fixture(scope="module")
+def scene(cold_scenes):
+    return cold_scenes["raw/three_d"]
+
+
+def test_result_follows_the_public_api(scene):
+    calib = scene.calibration
+    result = CenterlineEstimator(calib).estimate(scene.left, scene.right)
+    assert result.valid and result.reason == ""
+    assert result.points.shape == (20, 3) and result.points.dtype == np.float64
+    assert result.left_uv.shape == (20, 2) and result.right_uv.shape == (20, 2)
+    # base -> tip in the left camera frame (OpenCV axes): the base hangs at the top
+    assert np.linalg.norm(result.points[0] - scene.gt_points[0]) < 0.01
+    # the 2D centerlines are the estimate seen through each raw camera
+    np.testing.assert_allclose(result.left_uv, calib.project(result.points, "left"), atol=1e-6)
+    np.testing.assert_allclose(result.right_uv, calib.project(result.points, "right"), atol=1e-6)
+    assert {"rectify", "segment", "centerline", "refine", "match", "triangulate", "total"} <= set(result.timings_ms)
+    assert result.timings_ms["total"] > 0
+
+
+def test_paper_mode_uv_are_the_som_nodes_in_raw_pixels(scene):
+    calib = scene.calibration
+    result = CenterlineEstimator(calib, EstimatorConfig(mode="paper")).estimate(scene.left, scene.right)
+    assert result.valid
+    np.testing.assert_allclose(result.left_uv,
+                               calib.rectification.unrectify_points(result.nodes_rect["left"], "left"), atol=1e-9)
+    assert result.misalignment_px > 0  # eq. (11) before compensation
+
+
+@pytest.mark.parametrize(
+    ("left", "message"),
+    [
+        (np.zeros((720, 1280), np.uint8), r"left_bgr: expected shape \(720, 1280, 3\).*got \(720, 1280\)"),
+        (np.zeros((720, 1280, 3), np.float32), "left_bgr: expected dtype uint8, got float32"),
+        (np.zeros((480, 640, 3), np.uint8), r"left_bgr: expected shape \(720, 1280, 3\).*got \(480, 640, 3\)"),
+        ([[0]], "left_bgr: expected a numpy array"),
+    ],
+)
+def test_bad_input_names_expected_and_actual(scene, left, message):
+    with pytest.raises(ValueError, match=message):
+        CenterlineEstimator(scene.calibration).estimate(left, scene.right)
+
+
+def test_armless_frame_is_invalid_and_keeps_the_warm_state(bending_sequence):
+    frames = bending_sequence
+    est = CenterlineEstimator(frames[0].calibration)
+    assert est.estimate(frames[10].left, frames[10].right).valid
+    warm = {side: nodes.copy() for side, nodes in est._warm.items()}
+    blank = np.full_like(frames[0].left, (200, 190, 180))
+    result = est.estimate(blank, blank)
+    assert not result.valid and "no arm found in the left image" in result.reason
+    assert result.points.shape == (0, 3)
+    for side in warm:
+        np.testing.assert_array_equal(est._warm[side], warm[side])
+    # a half-empty pair fails on the right image and keeps the state too
+    assert not est.estimate(frames[11].left, blank).valid
+    np.testing.assert_array_equal(est._warm["left"], warm["left"])
+    assert est.estimate(frames[11].left, frames[11].right).valid
+
+
+def test_reset_forgets_the_previous_frame(bending_sequence):
+    est = CenterlineEstimator(bending_sequence[0].calibration)
+    est.estimate(bending_sequence[5].left, bending_sequence[5].right)
+    est.reset()
+    assert all(nodes is None for nodes in est._warm.values())
+
+
+def test_folded_arm_is_reported_invalid_not_silently_wrong():
+    calib = zed_like_calibration()
+    points, joints = folded_shape()
+    scene = render_scene(calib, points, joints)
+    result = CenterlineEstimator(calib).estimate(scene.left, scene.right)
+    assert not result.valid and ("self-overlap" in result.reason or "visible" in result.reason)
+
+
+def test_base_pixel_picks_the_base_end(scene):
+    calib = scene.calibration
+    tip_pixel = calib.project(scene.gt_points[-1:], "left")[0]
+    result = CenterlineEstimator(calib, EstimatorConfig(base_pixel=tuple(tip_pixel))).estimate(scene.left, scene.right)
+    assert result.valid
+    # told that the base is at the tip, the estimate runs the other way round
+    assert np.linalg.norm(result.points[0] - scene.gt_points[-1]) < 0.015
+
+
+@pytest.mark.parametrize("mode", ["default", "paper"])
+@pytest.mark.parametrize("centerline", CENTERLINES)
+def test_every_centerline_stage_runs_the_full_3d_pipeline(cold_scenes, mode, centerline):
+    """Every stage runs end to end. Competitive learning and K-Means++ may tangle the chain
+    (the paper's Fig. 7): then the frame is flagged invalid or scored badly, never a crash."""
+    scene = cold_scenes["raw/c_bend"]
+    est = CenterlineEstimator(scene.calibration, EstimatorConfig(mode=mode, centerline=centerline))
+    result = est.estimate(scene.left, scene.right)
+    if not result.valid:
+        assert centerline in ("competitive", "kmeans++") and result.reason
+        return
+    assert result.points.shape == (20, 3) and np.all(np.isfinite(result.points))
+    rmse = score_against_backbone(result.points, scene.gt_points)["rmse_mm"]
+    if centerline in ("som", "skeleton", "thinning"):  # this shape is monotonic down the rows
+        assert rmse < (5.0 if mode == "default" else 60.0)

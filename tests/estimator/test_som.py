@@ -1,0 +1,82 @@
+"""SOM properties: ordered base to tip, independent of input order, compiled equals reference."""
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from estimator import metrics
+from estimator.som import linear_init, presentation_order, som_batch, som_online
+
+
+def band_points(rng, bend: float, count: int = 600, half_width: float = 15.0) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels filling a bent band that hangs down the image, and its true centre line."""
+    s = np.linspace(0, 1, 400)
+    centre = np.column_stack([400 + 150 * bend * np.sin(2.2 * s) ** 2 * np.sign(bend + 1e-9), 100 + 450 * s])
+    idx = rng.integers(0, len(s), count)
+    tangent = np.gradient(centre, axis=0)
+    normal = np.column_stack([-tangent[:, 1], tangent[:, 0]])
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    points = centre[idx] + normal[idx] * rng.uniform(-half_width, half_width, count)[:, None]
+    return points, centre
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), bend=st.floats(-1.0, 1.0))
+def test_som_is_ordered_base_to_tip_and_on_the_band(seed, bend):
+    rng = np.random.default_rng(seed)
+    points, centre = band_points(rng, bend)
+    nodes = som_online(points, linear_init(points, 20), seed=seed)
+    # ordered: node rows increase monotonically down this hanging band, base (top) first
+    assert np.all(np.diff(nodes[:, 1]) > 0)
+    assert metrics.topology_error(points, nodes) < 0.05
+    # and close to the centre line (within the band's half width)
+    closest, _ = metrics.closest_points_on_polyline(nodes, centre)
+    assert np.max(np.linalg.norm(nodes - closest, axis=1)) < 15.0
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000))
+def test_som_does_not_depend_on_input_order(seed):
+    rng = np.random.default_rng(seed)
+    points, _ = band_points(rng, 0.5, count=300)
+    shuffled = points[rng.permutation(len(points))]
+    init = linear_init(points, 20)
+    np.testing.assert_array_equal(som_online(points, init), som_online(shuffled, init))
+    # batch sums run in input order: equal up to floating-point rounding
+    np.testing.assert_allclose(som_batch(points, init), som_batch(shuffled[::-1], init), atol=1e-9)
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 10_000), per_sample=st.booleans(), sigma=st.floats(0.3, 3.0))
+def test_compiled_som_equals_numpy_reference(seed, per_sample, sigma):
+    rng = np.random.default_rng(seed)
+    points, _ = band_points(rng, 0.7, count=200)
+    init = linear_init(points, 20)
+    kwargs = dict(seed=seed, time="sample" if per_sample else "epoch", sigma0=sigma)
+    compiled = som_online(points, init, compiled=True, **kwargs)
+    reference = som_online(points, init, compiled=False, **kwargs)
+    np.testing.assert_allclose(compiled, reference, atol=1e-9)
+
+
+def test_learning_rate_ends_near_a_tenth_with_table_1():
+    """alpha(t) = alpha0 / (1 + t / lambda) with t counting epochs: 0.2 falls to about 0.1."""
+    from estimator.som import _schedule
+
+    first = _schedule(0, 0, 100, 15, 0.2, 15.0, 2.0, 1.0, False)
+    last = _schedule(14, 99, 100, 15, 0.2, 15.0, 2.0, 1.0, False)
+    assert first[0] == 0.2 and first[1] == 2
+    assert 0.1 < last[0] < 0.11 and last[1] == 1
+
+
+def test_linear_init_spans_the_points_base_first():
+    points = np.column_stack([np.full(50, 100.0), np.linspace(500, 20, 50)])
+    nodes = linear_init(points, 10)
+    np.testing.assert_allclose(nodes[0], [100, 20], atol=1e-9)
+    np.testing.assert_allclose(nodes[-1], [100, 500], atol=1e-9)
+
+
+def test_presentation_order_covers_every_point_each_epoch():
+    order = presentation_order(np.random.default_rng(0).uniform(0, 100, (57, 2)), 4, seed=3)
+    assert order.shape == (4, 57)
+    for epoch in order:
+        assert sorted(epoch) == list(range(57))
