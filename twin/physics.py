@@ -216,22 +216,28 @@ class ArmSimulation:
 
         Returns:
             True when the arm came to rest within ``max_time_s`` of simulated time.
+
+        Raises:
+            ValueError: a tolerance or time that is not a positive number.
+            SimulationError: as in ``advance``.
         """
         for name, value in (("tol_m_s", tol_m_s), ("tol_bar", tol_bar), ("max_time_s", max_time_s),
                             ("check_every_s", check_every_s)):
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name}: expected a positive number, got {value!r}")
-        start = self.time_s
+        start_step = self._steps
+        limit_steps = math.ceil(max_time_s / self.timestep_s - 1e-9)
+        interval_s = max(1, round(check_every_s / self.timestep_s)) * self.timestep_s  # at least one step
         while True:
             before = self._tracked_points()
-            self.advance(check_every_s)
+            self.advance(interval_s)
             # both the speed now and the mean speed over the interval: a turning point of a swing
             # has no speed but has moved
-            mean_speed = float(np.max(np.linalg.norm(self._tracked_points() - before, axis=1))) / check_every_s
+            mean_speed = float(np.max(np.linalg.norm(self._tracked_points() - before, axis=1))) / interval_s
             speed = max(mean_speed, self._max_point_speed())
             if speed < tol_m_s and np.all(np.abs(self.chamber_bar - self._commanded) < tol_bar):
                 return True
-            if self.time_s - start >= max_time_s:
+            if self._steps - start_step >= limit_steps:
                 warnings.warn(f"arm not at rest after {max_time_s} s of simulated time (t = {self.time_s:.3f} s, "
                               f"fastest point {speed:.2e} m/s)", NotSettledWarning, stacklevel=2)
                 return False

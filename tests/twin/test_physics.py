@@ -283,6 +283,18 @@ def test_settle_warns_and_returns_false_when_not_at_rest_in_time(params, arm):
     arm.command(pressures(params, 2.5))
     with pytest.warns(NotSettledWarning, match="not at rest"):
         assert arm.settle(max_time_s=0.1) is False
+    # checking more often than once a step still advances (one step per check)
+    with pytest.warns(NotSettledWarning):
+        assert arm.settle(max_time_s=0.01, check_every_s=1e-4) is False
+    assert arm.time_s == pytest.approx(0.1 + 0.01, abs=arm.timestep_s)
+
+
+def test_settle_does_not_mistake_a_still_start_for_rest(params, arm):
+    # at t = 0 nothing moves yet, but the pressurised arm is far from equilibrium
+    arm.command(pressures(params, 2.5))
+    assert arm.settle()
+    assert arm.time_s > 1.0
+    assert arm.section_bend_deg()[0] > 60
 
 
 # ----------------------------------------------------------------------------- state and geometry
