@@ -262,7 +262,8 @@ def make_mjcf(params: ArmParams, *, timestep_s: float = 0.002,
     ET.SubElement(root, "compiler", angle="radian", autolimits="true")
     option = ET.SubElement(root, "option", timestep=_num(timestep_s), integrator="implicitfast",
                            gravity=_vec(gravity))
-    # the arm never touches itself; collision geoms exist for obstacles added to a scene.
+    # the arm never touches itself; collision geoms (contype 1, conaffinity 0) are there for obstacles a
+    # scene may add, which then also enables the contact flag.
     # autoreset off: a bad state stays in mjData for the error message instead of silently resetting.
     ET.SubElement(option, "flag", contact="disable", autoreset="disable")
 

@@ -138,8 +138,20 @@ class SectionParams:
 
 
 @dataclass(frozen=True)
+class BaseMountParams:
+    """The fixed disc the arm hangs from; its lower face is the world origin (s = 0)."""
+
+    radius_m: float
+    thickness_m: float
+
+    def __post_init__(self) -> None:
+        for name in ("radius_m", "thickness_m"):
+            _positive(name, getattr(self, name))
+
+
+@dataclass(frozen=True)
 class PlateParams:
-    """A rigid 3D-printed disc: the base mount (fixed, ``mass_kg`` unused) or a section baseplate."""
+    """A rigid 3D-printed baseplate between two sections (part of the arm's length)."""
 
     radius_m: float
     thickness_m: float
@@ -165,7 +177,7 @@ class ArmParams:
 
     max_pressure_bar: float
     valve_time_constant_s: float
-    base_mount: PlateParams
+    base_mount: BaseMountParams
     baseplate: PlateParams
     sections: tuple[SectionParams, ...]
     source: Path | None = None
@@ -223,7 +235,8 @@ class ArmParams:
             raise ParamsFileError(f"{path}: missing key 'section' (one [[section]] table per section, base to tip)")
         sections = tuple(reader.section(raw, f"section[{i}]") for i, raw in enumerate(sections_raw))
         return reader.build(cls, arm, "arm", max_pressure_bar=float, valve_time_constant_s=float,
-                            extra={"base_mount": reader.plate(data, "base_mount"),
+                            extra={"base_mount": reader.build(BaseMountParams, reader.table(data, "base_mount", ""),
+                                                              "base_mount", radius_m=float, thickness_m=float),
                                    "baseplate": reader.plate(data, "baseplate"),
                                    "sections": sections, "source": path})
 
