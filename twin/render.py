@@ -278,6 +278,29 @@ def tube_surface(points: np.ndarray, radius: np.ndarray, sides: int,
             np.vstack(faces).astype(np.uint32))
 
 
+def _keep_egl_display(platform) -> None:
+    """Make a pyrender EGL platform release only its own context.
+
+    pyrender's ``delete_context`` (called by ``OffscreenRenderer.delete`` and by its ``__del__``
+    when a renderer is garbage-collected) calls ``eglTerminate`` on the process-wide EGL display,
+    which kills every other renderer's context in the process (two twins, a twin and a
+    calibration renderer). Destroying just this context is enough.
+    """
+    if not all(hasattr(platform, a) for a in ("_egl_display", "_egl_context", "delete_context")):
+        return
+
+    def delete_context() -> None:
+        from OpenGL import EGL
+
+        display, context = platform._egl_display, platform._egl_context
+        platform._egl_display = platform._egl_context = None
+        if display is not None and context is not None:
+            EGL.eglMakeCurrent(display, EGL.EGL_NO_SURFACE, EGL.EGL_NO_SURFACE, EGL.EGL_NO_CONTEXT)
+            EGL.eglDestroyContext(display, context)
+
+    platform.delete_context = delete_context
+
+
 def _linear(rgb_display: Sequence[float]) -> np.ndarray:
     """Display RGB -> linear BGR for pyrender's shader (which writes linear ** (1 / 2.2))."""
     return np.asarray(rgb_display, dtype=np.float64)[::-1] ** _GAMMA
@@ -382,6 +405,7 @@ class StereoRenderer:
         except Exception as e:  # EGL missing devices/drivers surface as many exception types
             raise RenderBackendError(f"cannot create an offscreen EGL context ({type(e).__name__}: {e}); "
                                      f"{EGL_HINT}") from e
+        _keep_egl_display(self._renderer._platform)
         # Linear light = base * (ambient + directional * cos); see _MATTE_FRAG.
         if hasattr(self._renderer._renderer, "_program_cache"):
             self._renderer._renderer._program_cache = _matte_program_cache(pyrender)
@@ -686,22 +710,8 @@ class StereoRenderer:
     def close(self) -> None:
         """Release the OpenGL context; closing twice is harmless."""
         renderer, self._renderer = getattr(self, "_renderer", None), None
-        if renderer is None:
-            return
-        platform = renderer._platform
-        if not all(hasattr(platform, a) for a in ("_egl_display", "_egl_context")):
+        if renderer is not None:
             renderer.delete()
-            return
-        # pyrender's own delete() calls eglTerminate on the process-wide EGL display, which
-        # kills every other renderer's context; free this one's resources and context only.
-        from OpenGL import EGL
-
-        platform.make_current()
-        renderer._renderer.delete()
-        EGL.eglMakeCurrent(platform._egl_display, EGL.EGL_NO_SURFACE, EGL.EGL_NO_SURFACE, EGL.EGL_NO_CONTEXT)
-        EGL.eglDestroyContext(platform._egl_display, platform._egl_context)
-        platform._egl_context = None
-        platform._egl_display = None
 
     def __enter__(self) -> StereoRenderer:
         return self

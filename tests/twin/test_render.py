@@ -238,6 +238,28 @@ def test_fast_scissored_readback_matches_pyrenders_full_render(rig):
     np.testing.assert_allclose(a.depth_left_m[finite], b.depth_left_m[finite], atol=1e-4)
 
 
+def test_renderers_live_side_by_side_and_dropping_one_spares_the_others(rig):
+    """pyrender's own clean-up terminates the process-wide EGL display; ours must not."""
+    import gc
+
+    shape = hanging()
+    keep = StereoRenderer(rig, sensor=SensorModel(0.0))
+    try:
+        before = keep.render(shape, depth=False).left
+        closed = StereoRenderer(rig)
+        closed.render(shape)
+        closed.close()
+        closed.close()
+        dropped = StereoRenderer(rig)
+        dropped.render(shape)
+        del dropped
+        gc.collect()
+        after = keep.render(shape, depth=False).left
+        assert np.array_equal(before, after)
+    finally:
+        keep.close()
+
+
 def test_sensor_noise_is_seeded_and_has_the_configured_spread(rig):
     shape = hanging()
     sensor = SensorModel(noise_std_dn=3.0)
