@@ -119,7 +119,7 @@ class StereoCalibration:
         Returns:
             (N, 2) raw pixel coordinates (OpenCV: pixel centres at integers).
         """
-        points = np.asarray(points_left_cam, dtype=np.float64).reshape(-1, 3)
+        points = np.ascontiguousarray(points_left_cam, dtype=np.float64).reshape(-1, 3)
         if _side(side) == "left":
             rvec, tvec = np.zeros(3), np.zeros(3)
         else:

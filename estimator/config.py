@@ -74,7 +74,8 @@ class EstimatorConfig:
             normal to the curve (sub-pixel, unbiased on bends).
         extend_ends: extend both ends to where the silhouette ends, corrected for the end-cap
             geometry using ``arm_radius_m``.
-        arm_radius_m: tube radius, used for the end-cap correction and plausibility checks.
+        arm_radius_m: tube radius; the default mode measures the radius from width and disparity
+            and uses this where it cannot (end-cap correction) and as a floor for the overlap check.
         arm_length_m: nominal arm length; an estimate shorter than ``min_length_fraction`` of it
             means part of the arm is hidden (folded behind itself, out of view): invalid.
             None disables the check.

@@ -17,6 +17,7 @@ import numpy as np
 from scipy.interpolate import make_lsq_spline
 
 SAMPLE_SPACING_PX = 3.0
+END_TOLERANCE = 0.04
 KNOT_SPACING_PX = 24.0
 
 
@@ -193,7 +194,8 @@ def refine_centerline(mask: np.ndarray, nodes: np.ndarray, *, iterations: int = 
     return Centerline2D(points, ok, np.where(ok, half, np.nan), _arc(points))
 
 
-def _full_width(arc: np.ndarray, half: np.ndarray, ok: np.ndarray, tolerance: float = 0.08) -> np.ndarray:
+def _full_width(arc: np.ndarray, half: np.ndarray, ok: np.ndarray, tolerance: float = 0.08,
+                end_tolerance: float = END_TOLERANCE) -> np.ndarray:
     """Chords as wide as the tube around them: the rest are cut by a baseplate or lie in the end cap.
 
     The end cap's image is tilted when seen off-axis, so chords inside it are off-centre;
@@ -210,7 +212,11 @@ def _full_width(arc: np.ndarray, half: np.ndarray, ok: np.ndarray, tolerance: fl
     lo = np.searchsorted(arc[idx], arc - window / 2)
     hi = np.searchsorted(arc[idx], arc + window / 2)
     local = _window_medians(half[idx], lo, hi, typical)
-    return coarse & (np.abs(half - local) <= tolerance * local)
+    # Within a width of the ends, chords that cross the end cap's tilted image are off-centre
+    # while still nearly full width: hold them to a tighter tolerance.
+    near_end = (arc - arc[idx[0]] < 2.0 * typical) | (arc[idx[-1]] - arc < 2.0 * typical)
+    allowed = np.where(near_end, end_tolerance, tolerance) * local
+    return coarse & (np.abs(half - local) <= allowed)
 
 
 @numba.njit(cache=True, nogil=True)

@@ -32,7 +32,8 @@ def polynomial_smooth(points: np.ndarray, degree: int = 6) -> np.ndarray:
 
 
 def robust_spline_profile(x: np.ndarray, y: np.ndarray, weights: np.ndarray, at: np.ndarray, *,
-                          knots: int = 8, iterations: int = 3, huber: float = 1.5) -> np.ndarray:
+                          knots: int = 8, iterations: int = 3, huber: float = 1.5,
+                          flat_start: bool = False) -> np.ndarray:
     """Weighted least-squares cubic spline y(x) with Huber reweighting, evaluated at ``at``.
 
     Used for the disparity along the arm: matches that rows pin down well carry large weights,
@@ -43,6 +44,7 @@ def robust_spline_profile(x: np.ndarray, y: np.ndarray, weights: np.ndarray, at:
         x: (M,) positions (any order); y: (M,) values; weights: (M,) >= 0 (0 = ignore).
         knots: interior knots, spread over the weighted data by quantile.
         huber: residuals beyond this many robust standard deviations are down-weighted.
+        flat_start: continue flat (zero slope) before the data instead of straight on.
     """
     use = (weights > 0) & np.isfinite(y)
     order = np.argsort(x[use], kind="stable")
@@ -68,5 +70,5 @@ def robust_spline_profile(x: np.ndarray, y: np.ndarray, weights: np.ndarray, at:
     reach = 0.1 * (hi - lo)
     slope_lo = (spline(lo + reach) - spline(lo)) / reach
     slope_hi = (spline(hi) - spline(hi - reach)) / reach
-    slope = np.where(at < lo, slope_lo, slope_hi)
+    slope = np.where(at < lo, 0.0 if flat_start else slope_lo, slope_hi)
     return spline(inside) + slope * (at - inside)
