@@ -26,6 +26,7 @@ from estimator.calibration import StereoCalibration
 from estimator.clustering import competitive_learning, kmeans_plus_plus, order_greedy
 from estimator.config import EstimatorConfig
 from estimator.correspondence import compensate_nodes, match_rows
+from estimator.profile import BASE_RAMP_WIDTHS, BASE_SKIP_WIDTHS, base_ramp, measured_radius_m, with_width_cue
 from estimator.refinement import Centerline2D, refine_centerline
 from estimator.segmentation import (
     arm_mask,
@@ -42,9 +43,6 @@ from estimator.som import linear_init, som_batch, som_online
 from estimator.triangulation import triangulate
 
 COARSE_SCALE = 4
-BASE_SKIP_WIDTHS = 0.5  # see _base_ramp
-BASE_RAMP_WIDTHS = 0.5
-WIDTH_CUE_WEIGHT = 0.02  # a row crossing at ~8 degrees weighs as much as one width sample
 SIDES = ("left", "right")
 
 
@@ -330,12 +328,12 @@ class CenterlineEstimator:
         tau = left.arc_px / max(left.arc_px[-1], 1e-9)
         with _timed(timings, "match"):
             disparity, weight = match_rows(left.points, right.points, right_valid=right.valid)
-            ramp = _base_ramp(left, BASE_SKIP_WIDTHS, BASE_RAMP_WIDTHS)
+            ramp = base_ramp(left, BASE_SKIP_WIDTHS, BASE_RAMP_WIDTHS)
             weight = np.where(left.valid, weight, 0.0) * ramp
             if np.count_nonzero(weight > 0.05) < max(8, len(tau) // 5):
                 raise _NoArmError("left and right centerlines do not match row by row")
             self._check_single_tube(disparity, weight, left)
-            x, y, w = _with_width_cue(tau, disparity, weight, left, ramp)
+            x, y, w = with_width_cue(tau, disparity, weight, left, ramp)
             knots = int(np.clip(left.arc_px[-1] / 30.0, 3, 30))
             # The arm leaves its fixed mount along the mount's axis, across the line of sight:
             # depth changes only quadratically there, so the profile continues flat to the base.
@@ -345,7 +343,7 @@ class CenterlineEstimator:
         with _timed(timings, "triangulate"):
             dense = self._disparity_points(left.points, profile)
             if cfg.extend_ends:
-                radii = [_measured_radius_m(disparity, weight, left, self._rect.baseline_m, near_end=end)
+                radii = [measured_radius_m(disparity, weight, left, self._rect.baseline_m, near_end=end)
                          for end in (0, -1)]
                 span = tuple(self._cap_trim(sides, dense, end, radius if np.isfinite(radius) else cfg.arm_radius_m)
                              for end, radius in zip((0, -1), radii, strict=True))
@@ -372,7 +370,7 @@ class CenterlineEstimator:
         good = (weight > 0.05) & np.isfinite(left.half_width_px) & (disparity > 0)
         if np.count_nonzero(good) < 8:
             return
-        radius = np.nanmax([cfg.arm_radius_m, _measured_radius_m(disparity, weight, left, self._rect.baseline_m)])
+        radius = np.nanmax([cfg.arm_radius_m, measured_radius_m(disparity, weight, left, self._rect.baseline_m)])
         expected = disparity[good] * 2.0 * radius / self._rect.baseline_m
         wide = float(np.mean(2.0 * left.half_width_px[good] / expected > cfg.max_width_ratio))
         if wide > cfg.max_wide_fraction:
@@ -448,129 +446,13 @@ def _check_self_approach(points: np.ndarray, width_px: float, fraction: float, s
     if fraction <= 0 or width_px <= 0 or len(points) < 3:
         return
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
-    step = max(1, len(points) // 120)
-    p, a = points[::step], arc[::step]
-    distance = np.linalg.norm(p[:, None] - p[None], axis=2)
+    # Samples every quarter width are dense enough to see two parts touch.
+    keep = np.searchsorted(arc, np.arange(0.0, arc[-1], 0.25 * width_px))
+    p, a = points[keep], arc[keep]
+    d2 = ((p[:, None, :] - p[None, :, :]) ** 2).sum(axis=2)
     apart = np.abs(a[:, None] - a[None]) > 2.5 * width_px
-    if np.any(apart & (distance < fraction * width_px)):
+    if np.any(apart & (d2 < (fraction * width_px) ** 2)):
         raise _NoArmError(f"self-overlap in the {side} image: the centerline crosses or touches itself")
-
-
-def _with_width_cue(tau: np.ndarray, disparity: np.ndarray, weight: np.ndarray, left: Centerline2D,
-                    trust: np.ndarray):
-    """Append the apparent tube width as a weak disparity observation.
-
-    A tube's width and disparity both scale with 1/Z, in the ratio B / 2r. That ratio is
-    measured where rows pin the disparity down, separately for each piece of constant radius
-    (sections differ), and turns widths into disparities where rows cannot (the curve running
-    along the rows). Its weight is small: it only matters where rows say nothing. ``trust``
-    (0..1 per sample) scales it like the rows near the ends. A piece with no measured ratio of
-    its own (a whole section along the rows) borrows its neighbour's only if their widths match
-    across the joint, where both have the same depth: then they have the same radius. Never a
-    nominal radius: 10 % off there would put the piece 10 % off in depth.
-    """
-    width = 2.0 * left.half_width_px
-    has_width = np.isfinite(width)
-    if np.count_nonzero(has_width) < 8:
-        return tau, disparity, weight
-    pieces = _constant_radius_pieces(left.arc_px, width)
-    sigma = 3.0 * float(np.nanmedian(width))  # about three arm widths of arc
-    calibrator = (weight > 0.1) & has_width & (disparity > 0)
-    labels = [int(p) for p in np.unique(pieces[has_width])]
-    ratios: dict[int, np.ndarray] = {}  # piece -> local ratio at each of its members
-    members_of = {p: np.flatnonzero((pieces == p) & has_width) for p in labels}
-    for piece in labels:
-        members = members_of[piece]
-        known = np.flatnonzero((pieces == piece) & calibrator)
-        if weight[known].sum() < 1.0:
-            continue
-        ratio = disparity[known] / width[known]
-        near = weight[known] * np.exp(-0.5 * ((left.arc_px[members, None] - left.arc_px[None, known]) / sigma) ** 2)
-        ratios[piece] = (near @ ratio) / np.maximum(near.sum(axis=1), 1e-12)
-    for piece in labels:  # a piece without its own ratio may borrow a neighbour's of equal radius
-        if piece in ratios:
-            continue
-        borrowed = _borrow_ratio(piece, labels, members_of, ratios, width, left.arc_px, sigma / 3.0)
-        if borrowed is not None:
-            ratios[piece] = np.full(len(members_of[piece]), borrowed)
-    if not ratios:
-        return tau, disparity, weight
-    xs = [tau[members_of[p]] for p in ratios]
-    ys = [ratios[p] * width[members_of[p]] for p in ratios]
-    ws = [WIDTH_CUE_WEIGHT * trust[members_of[p]] for p in ratios]
-    return (np.append(tau, np.concatenate(xs)), np.append(disparity, np.concatenate(ys)),
-            np.append(weight, np.concatenate(ws)))
-
-
-def _borrow_ratio(piece: int, labels: list[int], members_of: dict, ratios: dict, width: np.ndarray,
-                  arc: np.ndarray, arm_width: float) -> float | None:
-    """The ratio of an adjacent piece whose width matches across the joint (same depth, same radius)."""
-    for neighbour in (piece - 1, piece + 1):
-        if neighbour not in ratios:
-            continue
-        mine, theirs = members_of[piece], members_of[neighbour]
-        joint = arc[mine[0]] if neighbour < piece else arc[mine[-1]]
-        here = mine[np.abs(arc[mine] - joint) < 1.5 * arm_width]
-        there_idx = np.abs(arc[theirs] - joint) < 1.5 * arm_width
-        if len(here) < 3 or np.count_nonzero(there_idx) < 3:
-            continue
-        a, b = np.median(width[here]), np.median(width[theirs[there_idx]])
-        if abs(a - b) <= 0.05 * b:
-            return float(np.median(ratios[neighbour][there_idx]))
-    return None
-
-
-def _constant_radius_pieces(arc: np.ndarray, width: np.ndarray) -> np.ndarray:
-    """Label stretches of the arm that can share one radius: cut at gaps and abrupt width steps.
-
-    Depth changes the width gradually; a different section (another radius) changes it within
-    about one width, and baseplates leave gaps without a width.
-    """
-    has = np.isfinite(width)
-    idx = np.flatnonzero(has)
-    typical = float(np.median(width[idx]))
-    cuts = np.zeros(len(arc), dtype=bool)
-    gap = np.diff(arc[idx]) > 0.5 * typical
-    cuts[idx[1:][gap]] = True
-    # Width step: the medians over one width before and after differ by more than 10 %.
-    before = np.searchsorted(arc[idx], arc[idx] - typical)
-    after = np.searchsorted(arc[idx], arc[idx] + typical)
-    w = width[idx]
-    for k in range(len(idx)):
-        if before[k] < k < after[k] - 1:
-            a, b = np.median(w[before[k]:k]), np.median(w[k:after[k]])
-            if abs(a - b) > 0.1 * min(a, b):
-                cuts[idx[k]] = True
-    labels = np.cumsum(cuts)
-    return labels
-
-
-def _base_ramp(curve: Centerline2D, skip_widths: float, ramp_widths: float) -> np.ndarray:
-    """Weights that ignore the silhouette next to the base mount and rise to 1 beyond it.
-
-    Where the arm leaves its mount, the silhouette's edges meet the dark plate instead of the
-    background; an edge pixel mixed with dark stays saturated and passes as arm where one mixed
-    with the light background does not, which biases those chords by a fraction of a pixel. The
-    disparity there continues from the clean body below (the arm leaves a fixed mount).
-    """
-    if not curve.valid.any() or skip_widths + ramp_widths <= 0:
-        return np.ones(len(curve.valid))
-    width = 2.0 * float(np.nanmedian(curve.half_width_px))
-    inside = curve.arc_px - curve.arc_px[curve.valid][0]
-    return np.clip((inside - skip_widths * width) / max(ramp_widths * width, 1e-9), 0.0, 1.0)
-
-
-def _measured_radius_m(disparity: np.ndarray, weight: np.ndarray, left: Centerline2D, baseline_m: float,
-                       near_end: int | None = None) -> float:
-    """Tube radius from width and disparity (r = w B / 2d), over the arm or near one end; NaN if unknown."""
-    good = (weight > 0.3) & np.isfinite(left.half_width_px) & (disparity > 0)
-    if near_end is not None:
-        reach = 6.0 * float(np.nanmedian(left.half_width_px))
-        from_end = left.arc_px if near_end == 0 else left.arc_px[-1] - left.arc_px
-        good &= from_end < reach
-    if np.count_nonzero(good) < 3:
-        return float("nan")
-    return float(np.median(left.half_width_px[good] * baseline_m / disparity[good]))
 
 
 def _project_rect(P: np.ndarray, points: np.ndarray) -> np.ndarray:

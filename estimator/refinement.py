@@ -211,7 +211,7 @@ def _full_width(arc: np.ndarray, half: np.ndarray, ok: np.ndarray, tolerance: fl
     window = 4.0 * typical  # two widths of arc
     lo = np.searchsorted(arc[idx], arc - window / 2)
     hi = np.searchsorted(arc[idx], arc + window / 2)
-    local = _window_medians(half[idx], lo, hi, typical)
+    local = window_medians(half[idx], lo, hi, typical)
     # Within a width of the ends, chords that cross the end cap's tilted image are off-centre
     # while still nearly full width: hold them to a tighter tolerance.
     near_end = (arc - arc[idx[0]] < 2.0 * typical) | (arc[idx[-1]] - arc < 2.0 * typical)
@@ -220,7 +220,8 @@ def _full_width(arc: np.ndarray, half: np.ndarray, ok: np.ndarray, tolerance: fl
 
 
 @numba.njit(cache=True, nogil=True)
-def _window_medians(values, lo, hi, fallback):
+def window_medians(values, lo, hi, fallback):
+    """Median of values[lo[i]:hi[i]] for every i (``fallback`` for an empty window)."""
     out = np.empty(len(lo))
     for i in range(len(lo)):
         out[i] = np.median(values[lo[i]:hi[i]]) if hi[i] > lo[i] else fallback

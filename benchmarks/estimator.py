@@ -1,0 +1,113 @@
+"""Estimator speed: per-stage milliseconds and fps for the default mode, the paper mode with the
+compiled SOM and the paper mode with the numpy reference SOM, measured side by side in one run.
+
+Frames come from the digital twin along the paper's ramp (s1_a, s2_a, s3 from 0 to 2.5 bar), so
+the arm takes the shapes of the experiment. Each configuration runs the whole sequence with warm
+start, interleaved frame by frame so machine load affects all of them alike; medians are quoted.
+
+    python benchmarks/estimator.py [--frames 30] [--repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+
+# Run as a script, this file's folder comes first on sys.path and its name would shadow the
+# estimator package: put the repository first.
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+
+import numpy as np  # noqa: E402
+
+from estimator import CenterlineEstimator, EstimatorConfig  # noqa: E402
+from estimator.som import linear_init, som_online  # noqa: E402
+
+CONFIGS = {
+    "default": EstimatorConfig(),
+    "paper (compiled SOM)": EstimatorConfig(mode="paper"),
+    "paper (numpy SOM)": EstimatorConfig(mode="paper", som_compiled=False),
+}
+
+
+def twin_frames(count: int):
+    from twin import Twin
+
+    twin = Twin()
+    frames = []
+    for pressure in np.linspace(0.0, 2.5, count):
+        twin.valves.set_pressures({"s1_a": pressure, "s2_a": pressure, "s3": pressure})
+        twin.advance(58.0 / count)
+        frame = twin.camera.grab()
+        frames.append((frame.left, frame.right))
+    calibration = twin.camera.calibration
+    twin.close()
+    return calibration, frames
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=30)
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+
+    calibration, frames = twin_frames(args.frames)
+    estimators = {name: CenterlineEstimator(calibration, cfg) for name, cfg in CONFIGS.items()}
+    for est in estimators.values():  # compile and warm caches outside the timing
+        est.estimate(*frames[0])
+        est.reset()
+
+    stages: dict[str, dict[str, list[float]]] = {name: {} for name in estimators}
+    cold: dict[str, list[float]] = {name: [] for name in estimators}
+    for _ in range(args.repeats):
+        for est in estimators.values():
+            est.reset()
+        for left, right in frames:
+            for name, est in estimators.items():
+                result = est.estimate(left, right)
+                for stage, ms in result.timings_ms.items():
+                    stages[name].setdefault(stage, []).append(ms)
+    for left, right in frames[:: max(1, len(frames) // 10)]:
+        for name, est in estimators.items():
+            est.reset()
+            cold[name].append(est.estimate(left, right).timings_ms["total"])
+
+    order = ["rectify", "segment", "centerline", "refine", "match", "triangulate", "smooth", "output", "total"]
+    print(f"Estimator speed, {len(frames)} twin frames (1280x720 stereo pairs) x {args.repeats}, medians in ms")
+    print("(stage times add both images, which run in parallel; 'total' is wall time per pair)\n")
+    print(f"{'stage':<12}" + "".join(f"{name:>24}" for name in estimators))
+    for stage in order:
+        row = [statistics.median(stages[name].get(stage, [0.0])) for name in estimators]
+        print(f"{stage:<12}" + "".join(f"{v:>24.2f}" for v in row))
+    totals = {name: statistics.median(stages[name]["total"]) for name in estimators}
+    print(f"{'fps (warm)':<12}" + "".join(f"{1000.0 / totals[name]:>24.1f}" for name in estimators))
+    print(f"{'cold total':<12}" + "".join(f"{statistics.median(cold[name]):>24.2f}" for name in estimators))
+    base = totals["default"]
+    print("\nRatios of wall time per pair (same run):")
+    for name in estimators:
+        print(f"  {name:<24} {totals[name] / base:6.2f} x default")
+
+    # The SOM alone (Table 1: n=20, N=2, alpha0=0.2, lambda=15) on a contour-sized input.
+    rng = np.random.default_rng(0)
+    s = np.linspace(0, 1, 300)
+    points = np.column_stack([800 + 60 * np.sin(3 * s), 250 + 450 * s]) + rng.normal(0, 8, (300, 2))
+    init = linear_init(points, 20)
+    timing = {}
+    for compiled in (True, False):
+        som_online(points, init, compiled=compiled)
+        samples = []
+        for _ in range(15 if compiled else 5):
+            start = time.perf_counter()
+            som_online(points, init, compiled=compiled)
+            samples.append((time.perf_counter() - start) * 1e3)
+        timing[compiled] = statistics.median(samples)
+    print(f"\nSOM alone ({len(points)} contour points, 15 epochs): compiled {timing[True]:.2f} ms, "
+          f"numpy reference {timing[False]:.1f} ms ({timing[False] / timing[True]:.0f}x)")
+
+
+if __name__ == "__main__":
+    main()
