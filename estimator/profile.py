@@ -12,7 +12,7 @@ import numpy as np
 
 from estimator.refinement import Centerline2D, window_medians
 
-BASE_SKIP_WIDTHS = 0.5  # see _base_ramp
+BASE_SKIP_WIDTHS = 0.5  # see base_ramp
 BASE_RAMP_WIDTHS = 0.5
 WIDTH_CUE_WEIGHT = 0.02  # a row crossing at ~8 degrees weighs as much as one width sample
 
