@@ -11,25 +11,16 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from estimator.som import presentation_order
+from estimator.som import presentation_order, winner
 
 
 @numba.njit(cache=True, nogil=True)
 def _competitive(points, nodes, order, alpha):
-    n = nodes.shape[0]
     epochs, count = order.shape
     for e in range(epochs):
         for i in range(count):
             k = order[e, i]
-            best = 0
-            best_d = np.inf
-            for j in range(n):
-                dx = points[k, 0] - nodes[j, 0]
-                dy = points[k, 1] - nodes[j, 1]
-                d = dx * dx + dy * dy
-                if d < best_d:
-                    best_d = d
-                    best = j
+            best = winner(points[k, 0], points[k, 1], nodes)
             # Algorithm 2, line 8: winner takes all.
             nodes[best, 0] += alpha * (points[k, 0] - nodes[best, 0])
             nodes[best, 1] += alpha * (points[k, 1] - nodes[best, 1])

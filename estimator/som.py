@@ -69,6 +69,21 @@ def _schedule(epoch: int, index: int, count: int, epochs: int, alpha0: float, la
 _schedule_jit = numba.njit(cache=True)(_schedule)
 
 
+@numba.njit(cache=True, inline="always")
+def winner(px, py, nodes):
+    """Index of the node nearest to (px, py): eqs. (1)-(2), the winner neuron j*."""
+    best = 0
+    best_d = np.inf
+    for j in range(nodes.shape[0]):
+        dx = px - nodes[j, 0]
+        dy = py - nodes[j, 1]
+        d = dx * dx + dy * dy
+        if d < best_d:
+            best_d = d
+            best = j
+    return best
+
+
 @numba.njit(cache=True, nogil=True)
 def _som_online_compiled(points, nodes, order, alpha0, lam, radius, sigma0, per_sample):
     n = nodes.shape[0]
@@ -78,15 +93,7 @@ def _som_online_compiled(points, nodes, order, alpha0, lam, radius, sigma0, per_
             k = order[e, i]
             px = points[k, 0]
             py = points[k, 1]
-            best = 0
-            best_d = np.inf
-            for j in range(n):  # eq. (1)-(2): the winner is the nearest node
-                dx = px - nodes[j, 0]
-                dy = py - nodes[j, 1]
-                d = dx * dx + dy * dy
-                if d < best_d:
-                    best_d = d
-                    best = j
+            best = winner(px, py, nodes)
             alpha, reach, sigma = _schedule_jit(e, i, count, epochs, alpha0, lam, radius, sigma0, per_sample)
             lo = max(0, best - reach)
             hi = min(n - 1, best + reach)
@@ -159,15 +166,7 @@ def _som_batch_compiled(points, nodes, iterations, sigma_start, sigma_end):
         sums[:] = 0.0
         hits[:] = 0.0
         for k in range(count):
-            best = 0
-            best_d = np.inf
-            for j in range(n):
-                dx = points[k, 0] - nodes[j, 0]
-                dy = points[k, 1] - nodes[j, 1]
-                d = dx * dx + dy * dy
-                if d < best_d:
-                    best_d = d
-                    best = j
+            best = winner(points[k, 0], points[k, 1], nodes)
             sums[best, 0] += points[k, 0]
             sums[best, 1] += points[k, 1]
             hits[best] += 1.0
