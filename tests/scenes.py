@@ -180,18 +180,37 @@ def render_scene(calib: StereoCalibration, points: np.ndarray, plate_s=(), radiu
 
 
 def standard_shapes() -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Named backbones of a 685 mm arm 0.9 to 1.1 m away: (points, section-joint arc lengths)."""
+    """Named backbones of a 685 mm arm 0.9 to 1.1 m away: (points, section-joint arc lengths).
+
+    The kinds of shapes the paper's arm takes: hanging straight, bending in the image plane,
+    bending towards the camera, three sections in different planes with a twisting tip.
+    """
     L = (0.235, 0.23, 0.22)
     return {
         "straight": backbone([Section(sum(L), 0.0, 0.0)], (0.0, -0.34, 1.0)),
         "c_bend": backbone([Section(L[0], 1.2, 0.0), Section(L[1], 1.8, 0.0), Section(L[2], 2.0, 0.0)],
                            (-0.05, -0.36, 0.98)),
-        "towards_camera": backbone([Section(L[0], 1.0, -1.57), Section(L[1], 1.5, -1.2), Section(L[2], 1.5, -0.8)],
-                                   (0.02, -0.36, 1.05)),
+        "towards_camera": backbone([Section(L[0], 1.0, 1.57), Section(L[1], 1.2, 1.2), Section(L[2], 1.2, 0.8)],
+                                   (0.02, -0.36, 1.08)),
         "three_d": backbone([Section(L[0], 1.6, 0.0), Section(L[1], 2.2, 1.57), Section(L[2], 2.2, 1.0, 3.0)],
                             (-0.08, -0.34, 1.0)),
         "s_curve": backbone([Section(L[0], 2.0, 0.0), Section(L[1], 2.6, 3.14), Section(L[2], 1.5, 0.5)],
                             (-0.02, -0.34, 0.95), tilt_rad=0.15),
+    }
+
+
+def u_shapes() -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Shapes beyond the paper's experiment: the arm curls until it crosses image rows twice."""
+    L = (0.235, 0.23, 0.22)
+    return {
         "hook": backbone([Section(L[0], 2.4, 0.0), Section(L[1], 3.0, 0.2), Section(L[2], 3.0, 0.6)],
                          (-0.14, -0.40, 1.0)),
+        "curl": backbone([Section(L[0], 1.0, 0.0), Section(L[1], 7.0, 0.0), Section(L[2], 7.0, 0.3)],
+                         (0.0, -0.34, 1.0)),
     }
+
+
+def folded_shape() -> tuple[np.ndarray, np.ndarray]:
+    """The tip folds back up in front of the arm: its silhouette overlaps the arm's."""
+    L = (0.235, 0.23, 0.22)
+    return backbone([Section(L[0], 0.5, 0.0), Section(L[1], 6.5, 1.57), Section(L[2], 6.0, 1.57)], (0.0, -0.34, 1.0))
