@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+from estimator import EstimatorConfig
 from hardware.protocol import DEFAULT_BAUD
 from hardware.zed import ZED_FPS, resolution_name
 
@@ -35,6 +36,9 @@ REPO = Path(__file__).resolve().parents[1]
 DEFAULT_CONFIG = REPO / "models" / "bench.toml"
 BACKENDS = ("sim", "rig")
 CALIBRATION_SUFFIXES = (".conf", ".toml")
+EXPERIMENT_KINDS = ("ramp", "step", "sweep", "random")
+# The paper's real-time bending experiment (section 5.2): the driven circuits of the three sections.
+PAPER_CHANNELS = ("s1_a", "s2_a", "s3")
 
 
 class ConfigError(ValueError):
@@ -131,11 +135,161 @@ class ValvesConfig:
 
 
 @dataclass(frozen=True)
+class DepthConfig:
+    """``[rig.depth]``: depth maps of the left camera (e.g. exported by the ZED SDK) for the paper's Q' metric.
+
+    The bench itself reads the ZED over UVC, which carries no depth; with this section the run
+    compares its estimate with a depth map per frame as the paper did (section 5.3).
+
+    Attributes:
+        source: folder of single-channel images (16-bit PNG or TIFF, or ``.npy``), one per camera
+            frame in name order, aligned with the raw LEFT image.
+        scale_m: metres per stored unit (0.001: millimetres, the ZED SDK's 16-bit export).
+    """
+
+    source: Path
+    scale_m: float = 0.001
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.scale_m) and self.scale_m > 0):
+            raise ValueError(f"scale_m: expected a positive number of metres per unit, got {self.scale_m!r}")
+
+
+@dataclass(frozen=True)
 class RigConfig:
-    """``[rig]``: the physical devices."""
+    """``[rig]``: the physical devices (and, optionally, a depth source for the Q' metric)."""
 
     camera: CameraConfig
     valves: ValvesConfig
+    depth: DepthConfig | None = None
+
+
+@dataclass(frozen=True)
+class ExperimentConfig:
+    """``[experiment]``: what the valves are commanded and when the camera captures.
+
+    The default is the paper's real-time bending experiment (section 5.2): s1_a, s2_a and s3
+    rise together from 0 to 2.5 bar in 0.05 bar steps over 58 s while 690 frames are captured.
+
+    Attributes:
+        kind: "ramp" (staircase start -> max in ``step_bar`` steps over the whole duration),
+            "step" (start, then max from ``step_at_s`` on), "sweep" (each channel in turn rises
+            to max and falls back, one share of the duration each: a per-section sweep),
+            "random" (every ``hold_s`` each channel takes a seeded random level on the step grid).
+        channels: the valves driven (the others stay vented).
+        start_bar, max_bar: lowest and highest commanded pressure.
+        step_bar: pressure increment of the ramp and sweep, and the grid of random levels.
+        duration_s: length of the experiment (simulated seconds in the twin, real ones on the rig).
+        frames: captures spread evenly over the whole experiment, first at 0 s, last at the end
+            (``softarm run --frames N`` overrides).
+        step_at_s: "step": when the pressure jumps.
+        hold_s: "random": how long each random set of levels is held.
+        seed: "random": the sequence's seed.
+        settle: sim: let the arm come to rest at the start pressures before t = 0.
+        quasi_static: sim: after every pressure change run the twin until the arm is at rest
+            (a static sweep; simulated time then runs ahead of the schedule's time).
+        lead_in_s: hold the start pressures this long before t = 0 (rig: let the arm settle).
+    """
+
+    kind: Literal["ramp", "step", "sweep", "random"] = "ramp"
+    channels: tuple[str, ...] = PAPER_CHANNELS
+    start_bar: float = 0.0
+    max_bar: float = 2.5
+    step_bar: float = 0.05
+    duration_s: float = 58.0
+    frames: int = 690
+    step_at_s: float = 1.0
+    hold_s: float = 2.0
+    seed: int = 0
+    settle: bool = True
+    quasi_static: bool = False
+    lead_in_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not self.channels:
+            raise ValueError("channels: expected at least one valve name")
+        if len(set(self.channels)) != len(self.channels):
+            raise ValueError(f"channels: a valve is listed twice in {list(self.channels)}")
+        for name in ("start_bar", "max_bar", "step_bar", "duration_s", "step_at_s", "hold_s", "lead_in_s"):
+            value = getattr(self, name)
+            if not math.isfinite(value):
+                raise ValueError(f"{name}: expected a finite number, got {value!r}")
+        if not 0 <= self.start_bar < self.max_bar:
+            raise ValueError(f"max_bar: expected 0 <= start_bar < max_bar, got start_bar {self.start_bar:g}, "
+                             f"max_bar {self.max_bar:g}")
+        if not 0 < self.step_bar <= self.max_bar - self.start_bar:
+            raise ValueError(f"step_bar: expected a step in (0, max_bar - start_bar], got {self.step_bar:g}")
+        if self.duration_s <= 0:
+            raise ValueError(f"duration_s: expected a positive duration, got {self.duration_s:g}")
+        if self.frames < 1:
+            raise ValueError(f"frames: expected at least one frame, got {self.frames}")
+        if not 0 <= self.step_at_s < self.duration_s:
+            raise ValueError(f"step_at_s: expected a time in [0, duration_s), got {self.step_at_s:g}")
+        if self.hold_s <= 0:
+            raise ValueError(f"hold_s: expected a positive duration, got {self.hold_s:g}")
+        if self.lead_in_s < 0:
+            raise ValueError(f"lead_in_s: expected a duration >= 0, got {self.lead_in_s:g}")
+        if self.seed < 0:
+            raise ValueError(f"seed: expected an integer >= 0, got {self.seed}")
+
+
+@dataclass(frozen=True)
+class RecordingConfig:
+    """``[recording]``: the run folder.
+
+    Attributes:
+        root: where ``softarm run`` creates its time-stamped folder (``--out`` overrides).
+        lossless_frames: raw stereo frames as PNG (lossless: the run can be replayed exactly);
+            false writes JPEG (a fraction of the size; enough for the report, not for replay).
+        png_compression: zlib level 0-9 of the PNGs (1: fast; the sensor noise barely compresses).
+        png_strategy: zlib strategy: "huffman" (no string matching: on noisy camera images a quarter
+            faster than "default" and smaller), "rle" or "default".
+        jpeg_quality: JPEG quality when ``lossless_frames`` is false.
+        depth: sim: keep the rendered left depth map (16-bit PNG, 0.1 mm) so a replay or the
+            report can compute the paper's Q' metric again.
+    """
+
+    root: Path = Path("../runs")
+    lossless_frames: bool = True
+    png_compression: int = 1
+    png_strategy: Literal["huffman", "rle", "default"] = "huffman"
+    jpeg_quality: int = 95
+    depth: bool = True
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.png_compression <= 9:
+            raise ValueError(f"png_compression: expected a zlib level 0-9, got {self.png_compression}")
+        if not 1 <= self.jpeg_quality <= 100:
+            raise ValueError(f"jpeg_quality: expected 1-100, got {self.jpeg_quality}")
+
+
+@dataclass(frozen=True)
+class ReportConfig:
+    """``[report]``: what ``softarm report`` (and the end of ``softarm run``) draws.
+
+    Attributes:
+        enabled: write the report at the end of ``softarm run`` (``--no-report`` skips it).
+        video: write the overlay video (MP4).
+        video_scale: size of the video relative to the camera image.
+        selected_frames: frames drawn over one image in Fig 10a, b (the paper printed 20).
+        centerline_frames: frames drawn in 3D in Fig 10c.
+        compensation_frames: frames on which Fig 12 re-runs the paper mode with and without
+            misalignment compensation (evenly spread; 0 skips the re-run).
+    """
+
+    enabled: bool = True
+    video: bool = True
+    video_scale: float = 0.5
+    selected_frames: int = 20
+    centerline_frames: int = 6
+    compensation_frames: int = 60
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.video_scale) and 0.05 <= self.video_scale <= 1.0):
+            raise ValueError(f"video_scale: expected a factor in [0.05, 1], got {self.video_scale!r}")
+        for name in ("selected_frames", "centerline_frames", "compensation_frames"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name}: expected a count >= 0, got {getattr(self, name)}")
 
 
 @dataclass(frozen=True)
@@ -146,12 +300,31 @@ class BenchConfig:
     backend: Literal["sim", "rig"] = "sim"
     sim: SimConfig = field(default_factory=SimConfig)
     rig: RigConfig | None = None
+    experiment: ExperimentConfig = field(default_factory=ExperimentConfig)
+    # ``[estimator]``: keys of ``estimator.EstimatorConfig`` (mode, centerline, n_points, ...), checked on load.
+    estimator: Mapping[str, Any] = field(default_factory=dict)
+    recording: RecordingConfig = field(default_factory=RecordingConfig)
+    report: ReportConfig = field(default_factory=ReportConfig)
 
     def __post_init__(self) -> None:
         if self.backend not in BACKENDS:
             raise ValueError(f"backend: expected one of {', '.join(map(repr, BACKENDS))}, got {self.backend!r}")
         if self.backend == "rig" and self.rig is None:
             raise ValueError("rig: backend 'rig' needs a [rig] section with [rig.camera] and [rig.valves]")
+        object.__setattr__(self, "estimator", types.MappingProxyType(dict(self.estimator)))
+        self.estimator_config()  # unknown keys and bad values fail on load, naming [estimator] and the key
+
+    def estimator_config(self, mode: str | None = None, **changes: Any) -> EstimatorConfig:
+        """The ``[estimator]`` table as an ``EstimatorConfig``, optionally in another mode or with changes.
+
+        Raises:
+            ValueError: an unknown key or a bad value; the message names ``[estimator]`` and the key.
+        """
+        table = dict(self.estimator)
+        if mode is not None:
+            table["mode"] = mode  # the file's other keys stay; the new mode's presets fill the rest
+        table.update(changes)
+        return EstimatorConfig.from_dict(table, source="[estimator]")
 
 
 # --- loading ------------------------------------------------------------------------------

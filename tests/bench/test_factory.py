@@ -111,7 +111,7 @@ def test_backend_override_and_wrong_backends_list_the_allowed_values(tmp_path):
 
 
 @pytest.mark.parametrize(("edit", "message"), [
-    (lambda t: t + "\n[experiment]\nframes = 10\n", r"unknown key experiment"),
+    (lambda t: t + "\n[experiments]\nframes = 10\n", r"unknown key experiments; did you mean .experiment.\?"),
     (lambda t: t.replace("fps = 30", "fsp = 30"), r"unknown key \[rig.camera\] fsp; did you mean 'fps'\?"),
     (lambda t: t.replace("fps = 30", 'fps = "30"'), r"\[rig.camera\] fps: expected a number, got '30' \(a string\)"),
     (lambda t: t.replace("fps = 30", "fps = 45"), r"\[rig.camera\] fps: the ZED offers 15, 30, 60 fps at HD"),

@@ -1,0 +1,156 @@
+"""``softarm replay RUN``: re-run an estimator configuration on a recorded run's frames and score it again.
+
+The recorded raw frames are fed in order to one estimator (so its warm start behaves as in the
+run), each estimate is scored against the recorded ground truth (``gt_m``) and, where the run
+kept depth maps, against Q'; the result is a new run-like folder (``frames.jsonl``,
+``summary.json``, ``config.json``, the calibration) whose records point at the original frames,
+so ``softarm report`` works on it too. With the run's own configuration (no ``--mode`` or
+``--centerline``) and lossless frames the scores are those recorded: the pipeline is deterministic.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from bench.config import RecordingConfig
+from bench.recording import CALIBRATION_FILE, Run, RunFolderError, RunWriter, load_run, summarize_run
+from bench.scoring import DEPTH_UNIT_M, summary_table
+from estimator import CenterlineEstimator, EstimatorConfig
+from hardware.interfaces import StereoFrame
+
+
+def replay_command(args) -> int:
+    """Entry point of ``softarm replay RUN [--mode ...] [--centerline ...] [--out DIR]``."""
+    try:
+        run = load_run(Path(args.run_dir))
+        config = replay_estimator_config(run, getattr(args, "mode", None), getattr(args, "centerline", None))
+    except (RunFolderError, ValueError) as e:
+        print(f"softarm replay: {e}", file=sys.stderr)
+        return 2
+    out = Path(args.out) if getattr(args, "out", None) else run.path / f"replay_{time.strftime('%Y-%m-%d_%H%M%S')}"
+    try:
+        summary = replay(run, config, out, progress=True)
+    except (RunFolderError, OSError) as e:
+        print(f"softarm replay: {e}", file=sys.stderr)
+        return 1
+    label = f"replay ({config.mode}, {config.centerline})"
+    print(f"replayed {summary['frames']} frames of {run.path} into {out}")
+    print("recorded:")
+    for line in summary_table(run.summary, label=f"recorded ({run.summary.get('mode')})"):
+        print("  " + line)
+    print("replayed:")
+    for line in summary_table(summary, label=label):
+        print("  " + line)
+    print(f"write its report with: softarm report {out}")
+    return 0
+
+
+def replay_estimator_config(run: Run, mode: str | None = None, centerline: str | None = None) -> EstimatorConfig:
+    """The run's main estimator configuration, or the run's ``[estimator]`` table in another mode/centerline.
+
+    Raises:
+        ValueError: a bad recorded configuration.
+    """
+    recorded = run.config.get("estimators", {}).get("main")
+    if recorded and mode is None and centerline is None:
+        return EstimatorConfig.from_dict(recorded, source=f"{run.path} estimators.main")
+    table = dict(run.config.get("bench", {}).get("estimator", {}))
+    if recorded:
+        table["mode"] = recorded.get("mode", table.get("mode", "default"))
+    if mode is not None:
+        table["mode"] = mode
+    if centerline is not None:
+        table["centerline"] = centerline
+    return EstimatorConfig.from_dict(table, source=f"{run.path} [estimator]")
+
+
+def replay(run: Run, config: EstimatorConfig, out: Path, *, progress: bool = False) -> dict:
+    """Estimate every recorded frame of ``run`` with ``config`` into the run-like folder ``out``.
+
+    Returns:
+        The new ``summary.json`` contents.
+
+    Raises:
+        RunFolderError: the run has no recorded frames to replay, or ``out`` already holds a run.
+    """
+    from bench.run import _Capture, _process
+
+    usable = [r for r in run.frames if r.get("images")]
+    if not usable:
+        raise RunFolderError(f"{run.path}: no recorded images to replay (the run kept no frames)")
+    lossy = sum(1 for r in usable if not run.lossless(r))
+    if lossy:
+        print(f"softarm replay: note: {lossy} frames were recorded as JPEG (lossy): scores will differ from the run's",
+              file=sys.stderr)
+    calibration = run.calibration
+    out = Path(out)
+    writer = RunWriter(out, RecordingConfig())
+    shutil.copyfile(run.path / CALIBRATION_FILE, out / CALIBRATION_FILE)
+    writer.write_config({**run.config, "replay_of": str(run.path.resolve()), "argv": list(sys.argv),
+                         "estimators": {"main": config.as_dict()}})
+    estimator = CenterlineEstimator(calibration, config)
+    records: list[dict] = []
+    skipped = 0
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(usable), desc=f"replay {run.path.name}", unit="frame", file=sys.stderr)
+    start = time.perf_counter()
+    try:
+        for original in usable:
+            left, right = run.image(original, "left"), run.image(original, "right")
+            if left is None or right is None:
+                skipped += 1
+                continue
+            depth_units, unit = _depth_units(run, original)
+            capture = _Capture(index=original["index"], t_s=original["t_s"],
+                               frame=StereoFrame(left, right, original.get("timestamp_s", original["t_s"]),
+                                                 original.get("camera_index", original["index"])),
+                               commanded_bar=original.get("commanded_bar", {}),
+                               chamber_bar=original.get("chamber_bar"), sim_time_s=original.get("sim_time_s"),
+                               gt_m=np.asarray(original["gt_m"]) if original.get("gt_m") else None,
+                               depth_units=depth_units, depth_unit_m=unit)
+            record = _process(capture, {"main": estimator}, calibration, _Totals())
+            record["images"] = {side: _relative(run.path / name, out) for side, name in original["images"].items()}
+            if original.get("depth"):
+                record["depth"] = {**original["depth"], "path": _relative(run.path / original["depth"]["path"], out)}
+            writer.submit(record, None, None)
+            records.append(record)
+            if bar is not None:
+                bar.update(1)
+    finally:
+        if bar is not None:
+            bar.close()
+        summary = summarize_run(records, {"backend": run.backend, "estimators": {"main": config.as_dict()}},
+                                wall_s=time.perf_counter() - start)
+        summary.update({"replay_of": str(run.path.resolve()), "skipped_frames": skipped,
+                        "ground_truth": run.has_ground_truth, "depth_source": run.summary.get("depth_source")})
+        writer.finish(summary)
+    return summary
+
+
+class _Totals(dict):
+    """Accepts the run loop's time bookkeeping and forgets it (a replay reports its own wall time)."""
+
+    def __missing__(self, key):
+        return 0.0
+
+
+def _depth_units(run: Run, record: dict) -> tuple[np.ndarray | None, float | None]:
+    info = record.get("depth")
+    if not info:
+        return None, None
+    units = cv2.imread(str(run.path / info["path"]), cv2.IMREAD_UNCHANGED)
+    return (None, None) if units is None else (units, info.get("unit_m", DEPTH_UNIT_M))
+
+
+def _relative(target: Path, folder: Path) -> str:
+    return os.path.relpath(Path(target).resolve(), Path(folder).resolve())

@@ -1,0 +1,523 @@
+"""``softarm report RUN``: plots, an overlay video and a markdown summary of a run folder.
+
+Works on any run folder ``load_run`` can read: finished, stopped, or killed (then the summary
+is recomputed from the frames). Everything goes to ``RUN/report/``:
+
+- ``fig12_axis_error.png``: per-axis error over time, against the exact backbone (left) and
+  against Q' (right, the paper's measure), for the run's estimator and for the paper mode with
+  and without misalignment compensation (Fig 12; the paper mode is re-run on
+  ``[report] compensation_frames`` recorded frames unless the run already compared it);
+- ``fig13_fps.png``: estimator frame rate over time (Fig 13);
+- ``fig10c_centerlines_3d.png``: 3D centerlines of selected frames with the ground truth (Fig 10c);
+- ``fig10ab_overlay.png``: segmentation contours and 2D centerlines of selected frames drawn on
+  one camera frame, first and last in red (Fig 10a, b);
+- ``fig11_qprime.png``: the estimate, Q' and the exact backbone of one pose (Fig 11);
+- ``overlay.mp4``: every frame with its centerline (and the projected ground truth);
+- ``summary.md``: the tables beside the paper's numbers, and what each figure shows.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from bench.recording import Run, RunFolderError, load_run, write_json
+from bench.scoring import PAPER, pooled_rmse, score_fields, summary_table
+from estimator import CenterlineEstimator, EstimatorConfig
+from estimator.segmentation import arm_mask
+
+REPORT_DIR = "report"
+_AXES = "xyz"
+_LOG_FLOOR_MM = 0.01  # errors are drawn on a log scale; an exact 0 would vanish
+_COLOURS = {"main": "tab:green", "paper": "tab:purple", "paper_nearest": "tab:orange", "paper_none": "tab:red"}
+
+
+def report_command(args) -> int:
+    """Entry point of ``softarm report RUN``."""
+    try:
+        out = write_report(Path(args.run_dir), progress=True)
+    except RunFolderError as e:
+        print(f"softarm report: {e}", file=sys.stderr)
+        return 1
+    print(f"report written to {out}")
+    return 0
+
+
+def write_report(run_dir: Path, *, progress: bool = False, options: Mapping | None = None) -> Path:
+    """Write the report of a run folder; returns the report folder.
+
+    Args:
+        run_dir: the run folder.
+        progress: print what is being drawn.
+        options: ``[report]`` options overriding those recorded with the run.
+
+    Raises:
+        RunFolderError: not a run folder.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    run = load_run(run_dir)
+    opts = {"video": True, "video_scale": 0.5, "selected_frames": 20, "centerline_frames": 6,
+            "compensation_frames": 60, **run.report_options(), **(options or {})}
+    out = run.path / REPORT_DIR
+    out.mkdir(exist_ok=True)
+    say = (lambda text: print(f"report: {text}", file=sys.stderr, flush=True)) if progress else (lambda text: None)
+    written: dict[str, str] = {}
+    start = time.perf_counter()
+    if not run.frames:
+        (out / "summary.md").write_text(f"# Run {run.path.name}\n\nNo frames were recorded.\n", encoding="utf-8")
+        return out
+    say("re-running the paper mode with and without misalignment compensation (Fig 12)")
+    compensation = compensation_study(run, int(opts["compensation_frames"]))
+    if compensation:
+        write_json(out / "compensation.json", compensation)
+    say("plots")
+    for name, draw in (("fig12_axis_error.png", lambda p: _fig12(run, compensation, p)),
+                       ("fig13_fps.png", lambda p: _fig13(run, p)),
+                       ("fig10c_centerlines_3d.png", lambda p: _fig10c(run, int(opts["centerline_frames"]), p)),
+                       ("fig10ab_overlay.png", lambda p: _fig10ab(run, int(opts["selected_frames"]), p)),
+                       ("fig11_qprime.png", lambda p: _fig11(run, p))):
+        note = draw(out / name)
+        written[name] = note
+    if opts["video"]:
+        say("overlay video")
+        written["overlay.mp4"] = write_overlay_video(run, out / "overlay.mp4", float(opts["video_scale"]))
+    _write_markdown(run, compensation, written, out / "summary.md", time.perf_counter() - start)
+    return out
+
+
+# --- Fig 12: error compensation -------------------------------------------------------------
+
+
+def compensation_study(run: Run, max_frames: int) -> dict | None:
+    """Re-run the paper mode with compensation "nearest" (the paper's) and "none" on recorded frames.
+
+    Frames are taken evenly over the run (at most ``max_frames``, lossless images only) and fed in
+    order to one estimator per variant, so the SOM warm-starts from the previous frame as in a run.
+
+    Returns:
+        ``{"frames": [index, ...], "t_s": [...], "nearest": [score fields...], "none": [...],
+        "summary": {variant: {...}}}``, or None when there is nothing to re-run.
+    """
+    if max_frames <= 0:
+        return None
+    candidates = [r for r in run.frames if r.get("images") and run.lossless(r)]
+    if not candidates:
+        return None
+    picks = _evenly(candidates, max_frames)
+    table = dict(run.config.get("bench", {}).get("estimator", {}))
+    calibration = run.calibration
+    estimators = {variant: CenterlineEstimator(calibration, EstimatorConfig.from_dict(
+        {**table, "mode": "paper", "compensation": variant}, source=f"{run.path} [estimator]"))
+        for variant in ("nearest", "none")}
+    out: dict = {"frames": [], "t_s": [], "nearest": [], "none": []}
+    for record in picks:
+        left, right = run.image(record, "left"), run.image(record, "right")
+        if left is None or right is None:
+            continue
+        depth = run.depth(record)
+        gt = np.asarray(record["gt_m"]) if record.get("gt_m") else None
+        out["frames"].append(record["index"])
+        out["t_s"].append(record["t_s"])
+        for variant, estimator in estimators.items():
+            result = estimator.estimate(left, right)
+            fields = {"valid": bool(result.valid), "reason": result.reason,
+                      "misalignment_px": float(result.misalignment_px) if result.valid else None}
+            if result.valid:
+                fields.update(score_fields(result.points, result.left_uv, gt, depth, calibration))
+                fields.pop("qprime_m", None)
+            out[variant].append(fields)
+    if not out["frames"]:
+        return None
+    out["summary"] = {variant: _variant_summary(out[variant]) for variant in ("nearest", "none")}
+    return out
+
+
+def _variant_summary(fields: Sequence[Mapping]) -> dict:
+    valid = [f for f in fields if f["valid"]]
+    exact = [f["errors"] for f in valid if f.get("errors")]
+    qprime = [f["qprime"] for f in valid if f.get("qprime")]
+    return {
+        "frames": len(fields), "valid_frames": len(valid),
+        "rmse_xyz_mm": [pooled_rmse(e[f"rmse_{a}_mm"] for e in exact) for a in _AXES],
+        "rmse_mm": pooled_rmse(e["rmse_mm"] for e in exact),
+        "qprime_rmse_xyz_mm": [pooled_rmse(q[f"{a}_mm"] for q in qprime) for a in _AXES],
+        "misalignment_px": float(np.mean([f["misalignment_px"] for f in valid if f["misalignment_px"] is not None]))
+        if valid else float("nan"),
+    }
+
+
+def _fig12(run: Run, compensation: dict | None, path: Path) -> str:
+    import matplotlib.pyplot as plt
+
+    has_exact = run.has_ground_truth
+    has_q = any(f.get("qprime") for f in run.frames) or bool(
+        compensation and any(x.get("qprime") for x in compensation["nearest"]))
+    if not (has_exact or has_q):
+        return "skipped: no ground truth and no depth source, so no error to plot"
+    columns = [c for c, ok in (("exact", has_exact), ("qprime", has_q)) if ok]
+    fig, axes = plt.subplots(3, len(columns), figsize=(6.5 * len(columns), 8), sharex=True, squeeze=False)
+    t = [f["t_s"] for f in run.frames]
+    series = [("main", f"{run.summary.get('mode', 'default')} mode (every frame)", run.frames, t)]
+    if any("paper" in f for f in run.frames):
+        series.append(("paper", "paper mode (every frame, --compare)", [f.get("paper") or {} for f in run.frames], t))
+    if compensation:
+        series.append(("paper_nearest", "paper mode, with compensation (re-run)", compensation["nearest"],
+                       compensation["t_s"]))
+        series.append(("paper_none", "paper mode, no compensation (re-run)", compensation["none"], compensation["t_s"]))
+    for col, kind in enumerate(columns):
+        for row, axis in enumerate(_AXES):
+            ax = axes[row][col]
+            for key, label, fields, times in series:
+                values = np.maximum([_axis_error(f, kind, axis) for f in fields], _LOG_FLOOR_MM)
+                wide = key == "paper"  # drawn under the re-run, which repeats it on the frames they share
+                ax.plot(times, values, ".-" if key.startswith("paper_") else "-", color=_COLOURS[key], label=label,
+                        linewidth=3 if wide else 1.2, alpha=0.45 if wide else 1.0, markersize=3)
+            if kind == "qprime":
+                ax.axhline(PAPER["rmse_xyz_mm"][row], color="black", linestyle=":", linewidth=1,
+                           label="paper, whole-motion RMSE (Table 2)")
+            ax.set_yscale("log")
+            ax.set_ylabel(f"{axis} RMSE (mm)")
+            ax.grid(True, which="both", alpha=0.3)
+        axes[0][col].set_title("against the exact backbone" if kind == "exact"
+                               else "against Q' (depth at the left centerline pixels, the paper's measure)")
+        axes[-1][col].set_xlabel("time (s)")
+    axes[0][0].legend(fontsize=7, loc="upper left")
+    if len(columns) > 1:
+        axes[0][1].legend(fontsize=7, loc="upper left")
+    fig.suptitle("Per-axis error during the motion (Fig 12)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return "written"
+
+
+def _axis_error(fields: Mapping, kind: str, axis: str) -> float:
+    if not fields or not fields.get("valid"):
+        return math.nan
+    if kind == "exact":
+        errors = fields.get("errors")
+        return errors[f"rmse_{axis}_mm"] if errors else math.nan
+    q = fields.get("qprime")
+    return q[f"{axis}_mm"] if q else math.nan
+
+
+# --- Fig 13: frame rate ---------------------------------------------------------------------
+
+
+def _fig13(run: Run, path: Path) -> str:
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 3.8))
+    t = np.array([f["t_s"] for f in run.frames])
+    for key, label in (("main", f"{run.summary.get('mode', 'default')} mode"), ("paper", "paper mode")):
+        fields = run.frames if key == "main" else [f.get("paper") for f in run.frames]
+        if key == "paper" and not any(fields):
+            continue
+        totals = np.array([(f or {}).get("timings_ms", {}).get("total", math.nan) for f in fields], dtype=float)
+        fps = 1000.0 / totals
+        ax.plot(t, fps, "-", color=_COLOURS[key], linewidth=1, label=f"{label} (median {np.nanmedian(fps):.1f} fps)")
+    if len(t) > 1 and run.backend == "rig":
+        ax.plot(t[1:], 1.0 / np.maximum(np.diff(t), 1e-6), color="tab:gray", linewidth=0.8,
+                label="loop rate (capture to capture)")
+    ax.axhline(PAPER["fps"], color="black", linestyle=":", label=f"paper: about {PAPER['fps']:g} fps")
+    ax.set_yscale("log")
+    ax.set_xlabel("time (s)" + (" (simulated)" if run.backend == "sim" else ""))
+    ax.set_ylabel("frames per second")
+    ax.set_title("Estimator frame rate (1 / time per frame) on this machine (Fig 13)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return "written"
+
+
+# --- Fig 10c, 11: 3D --------------------------------------------------------------------------
+
+
+def _view(points: np.ndarray) -> np.ndarray:
+    """Left-camera points (x right, y down, z forward) -> plot axes (x right, depth, up)."""
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    return np.column_stack([points[:, 0], points[:, 2], -points[:, 1]]) * 1e3
+
+
+def _fig10c(run: Run, count: int, path: Path) -> str:
+    import matplotlib.pyplot as plt
+
+    valid = [f for f in run.frames if f.get("valid")]
+    if not valid or count <= 0:
+        return "skipped: no valid frame"
+    picks = _evenly(valid, count)
+    fig = plt.figure(figsize=(7.5, 7))
+    ax = fig.add_subplot(projection="3d")
+    cmap = plt.get_cmap("viridis")
+    for k, f in enumerate(picks):
+        colour = cmap(k / max(len(picks) - 1, 1))
+        p = _view(f["points_m"])
+        ax.plot(p[:, 0], p[:, 1], p[:, 2], "o-", color=colour, markersize=3, linewidth=1.5,
+                label=f"t = {f['t_s']:.1f} s")
+        if f.get("gt_m"):
+            g = _view(f["gt_m"])
+            ax.plot(g[:, 0], g[:, 1], g[:, 2], "--", color="black", linewidth=0.8, alpha=0.7)
+    if any(f.get("gt_m") for f in picks):
+        ax.plot([], [], "--", color="black", linewidth=0.8, label="exact backbone")
+    ax.set_xlabel("x right (mm)")
+    ax.set_ylabel("depth z (mm)")
+    ax.set_zlabel("up -y (mm)")
+    _equal_3d(ax, np.vstack([_view(f["points_m"]) for f in picks]))
+    ax.set_title("3D centerlines of selected frames (Fig 10c)")
+    ax.legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return "written"
+
+
+def _fig11(run: Run, path: Path) -> str:
+    import matplotlib.pyplot as plt
+
+    with_q = [f for f in run.frames if f.get("valid") and f.get("qprime_m")]
+    if not with_q:
+        return "skipped: no frame with depth (Q')"
+    f = with_q[len(with_q) // 2]
+    q = np.array([[math.nan if v is None else v for v in row] for row in f["qprime_m"]], dtype=float)
+    fig = plt.figure(figsize=(7, 6.5))
+    ax = fig.add_subplot(projection="3d")
+    p = _view(f["points_m"])
+    ax.plot(p[:, 0], p[:, 1], p[:, 2], "o-", color=_COLOURS["main"], markersize=3, label="estimate Q")
+    qv = _view(q)
+    ax.plot(qv[:, 0], qv[:, 1], qv[:, 2], "s", color="tab:blue", markersize=3, label="Q' (depth at the left pixels)")
+    if f.get("gt_m"):
+        g = _view(f["gt_m"])
+        ax.plot(g[:, 0], g[:, 1], g[:, 2], "--", color="black", linewidth=1, label="exact backbone")
+    ax.set_xlabel("x right (mm)")
+    ax.set_ylabel("depth z (mm)")
+    ax.set_zlabel("up -y (mm)")
+    _equal_3d(ax, p)
+    ax.set_title(f"Q against Q' at t = {f['t_s']:.1f} s (Fig 11)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return "written"
+
+
+def _equal_3d(ax, points: np.ndarray) -> None:
+    points = points[np.all(np.isfinite(points), axis=1)]
+    if not len(points):
+        return
+    centre = (points.max(0) + points.min(0)) / 2
+    half = max(float((points.max(0) - points.min(0)).max()) / 2, 1.0) * 1.1
+    ax.set_xlim(centre[0] - half, centre[0] + half)
+    ax.set_ylim(centre[1] - half, centre[1] + half)
+    ax.set_zlim(centre[2] - half, centre[2] + half)
+
+
+# --- Fig 10a, b: overlays --------------------------------------------------------------------
+
+
+def _fig10ab(run: Run, count: int, path: Path) -> str:
+    import matplotlib.pyplot as plt
+
+    with_images = [f for f in run.frames if f.get("images")]
+    if not with_images or count <= 0:
+        return "skipped: the run recorded no images"
+    background = run.image(with_images[-1], "left")
+    if background is None:
+        return "skipped: image files missing"
+    picks = _evenly(with_images, count)
+    cfg = _main_estimator_config(run)
+    contours_img = background.copy()
+    lines_img = background.copy()
+    box = np.array([np.inf, np.inf, -np.inf, -np.inf])
+    order = [k for k in range(len(picks)) if k not in (0, len(picks) - 1)] + sorted({0, len(picks) - 1})
+    for k in order:  # first and last drawn last, on top
+        f = picks[k]
+        red = k in (0, len(picks) - 1)
+        colour = (0, 0, 255) if red else (255, 160, 0)
+        image = run.image(f, "left")
+        if image is not None:
+            mask = arm_mask(image, cfg)  # on the raw image: good enough to draw the outline
+            contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+            cv2.drawContours(contours_img, contours, -1, colour, 2 if red else 1, cv2.LINE_AA)
+            found = cv2.findNonZero(mask)
+            if found is not None:
+                x, y, w, h = cv2.boundingRect(found)
+                box = np.array([min(box[0], x), min(box[1], y), max(box[2], x + w), max(box[3], y + h)])
+        if f.get("valid"):
+            uv = np.round(np.asarray(f["left_uv"]) * 4).astype(np.int32)
+            cv2.polylines(lines_img, [uv.reshape(-1, 1, 2)], False, colour, 2, cv2.LINE_AA, shift=2)
+            for point in uv:
+                cv2.circle(lines_img, tuple(int(v) for v in point), 4 * 3, colour, -1, cv2.LINE_AA, shift=2)
+    if np.all(np.isfinite(box)):  # crop to where the arm went, with a margin
+        h, w = background.shape[:2]
+        m = 40
+        x0, y0 = int(max(box[0] - m, 0)), int(max(box[1] - m, 0))
+        x1, y1 = int(min(box[2] + m, w)), int(min(box[3] + m, h))
+        contours_img, lines_img = contours_img[y0:y1, x0:x1], lines_img[y0:y1, x0:x1]
+    aspect = contours_img.shape[0] / max(contours_img.shape[1], 1)
+    fig, axes = plt.subplots(1, 2, figsize=(12, max(3.5, min(12.0, 6 * aspect + 0.8))))
+    for ax, image, title in ((axes[0], contours_img, "(a) segmentation contours during the motion"),
+                             (axes[1], lines_img, "(b) 2D centerlines W_L (left image)")):
+        ax.imshow(cv2.cvtColor(image, cv2.COLOR_BGR2RGB))
+        ax.set_title(title)
+        ax.axis("off")
+    fig.suptitle(f"{len(picks)} frames at equal intervals on the last frame; first and last in red (Fig 10a, b)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return "written"
+
+
+def _main_estimator_config(run: Run) -> EstimatorConfig:
+    values = run.config.get("estimators", {}).get("main")
+    if not values:
+        return EstimatorConfig()
+    return EstimatorConfig.from_dict({k: v for k, v in values.items()}, source=f"{run.path} estimators.main")
+
+
+# --- video --------------------------------------------------------------------------------
+
+
+def write_overlay_video(run: Run, path: Path, scale: float) -> str:
+    """Every recorded left frame with its estimated centerline (green; paper mode purple) and the
+    projected exact backbone (white), as an MP4 (mp4v) at the experiment's real pace (at least 2 fps)."""
+    with_images = [f for f in run.frames if f.get("images")]
+    if not with_images:
+        return "skipped: the run recorded no images"
+    calibration = run.calibration
+    first = run.image(with_images[0], "left")
+    if first is None:
+        return "skipped: image files missing"
+    h, w = first.shape[:2]
+    size = (max(2, int(round(w * scale / 2)) * 2), max(2, int(round(h * scale / 2)) * 2))
+    span = with_images[-1]["t_s"] - with_images[0]["t_s"]
+    fps = max(2.0, (len(with_images) - 1) / span) if span > 0 else 2.0
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
+    if not writer.isOpened():
+        return "skipped: OpenCV cannot write MP4 (mp4v) here"
+    try:
+        for f in with_images:
+            image = run.image(f, "left")
+            if image is None:
+                continue
+            frame = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+            sx, sy = size[0] / w, size[1] / h
+
+            def draw(uv, colour, thickness, frame=frame, sx=sx, sy=sy):
+                uv = np.asarray(uv, dtype=float).reshape(-1, 2) * (sx, sy)
+                pts = np.round(uv * 4).astype(np.int32).reshape(-1, 1, 2)
+                cv2.polylines(frame, [pts], False, colour, thickness, cv2.LINE_AA, shift=2)
+
+            if f.get("gt_m"):
+                draw(calibration.project(np.asarray(f["gt_m"]), "left"), (255, 255, 255), 1)
+            if (f.get("paper") or {}).get("valid"):
+                draw(f["paper"]["left_uv"], (200, 60, 160), 1)
+            if f.get("valid"):
+                draw(f["left_uv"], (60, 200, 60), 2)
+            text = f"t {f['t_s']:5.1f} s  " + " ".join(f"{k} {v:.2f}" for k, v in f["commanded_bar"].items() if v)
+            status = (f"rmse {f['errors']['rmse_mm']:.1f} mm" if f.get("errors")
+                      else ("valid" if f.get("valid") else f"invalid: {f.get('reason', '')}"[:60]))
+            for k, line in enumerate((text, status)):
+                y = 18 + 18 * k
+                cv2.putText(frame, line, (8, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 3, cv2.LINE_AA)
+                cv2.putText(frame, line, (8, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
+            writer.write(frame)
+    finally:
+        writer.release()
+    return f"written ({len(with_images)} frames at {fps:.1f} fps, {size[0]}x{size[1]})"
+
+
+# --- markdown -------------------------------------------------------------------------------
+
+
+def _write_markdown(run: Run, compensation: dict | None, written: Mapping[str, str], path: Path,
+                    elapsed_s: float) -> None:
+    s = run.summary
+    lines = [f"# Run {run.path.name}", ""]
+    cfg = run.config
+    schedule = cfg.get("schedule", {})
+    lines.append(f"- backend: **{run.backend}**; estimator mode: **{s.get('mode')}**"
+                 + (" (paper mode compared on every frame)" if "paper" in s else ""))
+    if schedule:
+        levels = np.asarray(schedule.get("levels_bar", [[0]]))
+        lines.append(f"- experiment: {schedule.get('kind')} on {', '.join(schedule.get('channels', []))}, "
+                     f"{levels.min():g} to {levels.max():g} bar over {schedule.get('duration_s')} s, "
+                     f"{len(schedule.get('capture_times_s', []))} frames scheduled")
+    lines.append(f"- frames recorded: {len(run.frames)}, valid: {s.get('valid_frames')}")
+    if not run.complete:
+        lines.append(f"- **the run was killed**: no summary.json; summary recomputed from {len(run.frames)} frames"
+                     + (f" ({run.skipped_lines} cut-short line skipped)" if run.skipped_lines else ""))
+    elif s.get("stopped"):
+        lines.append(f"- **stopped early**: {s['stopped']}")
+    if s.get("dropped_frames"):
+        lines.append(f"- dropped frames (the loop fell behind the capture schedule): {s['dropped_frames']}")
+    if s.get("depth_source"):
+        lines.append(f"- depth source for Q': {s['depth_source']}")
+    lines += ["", "## Accuracy and speed beside the paper (Tables 2 and 3)", ""]
+    lines += summary_table(s, label=f"{s.get('mode', 'default')} mode", paper_mode=s.get("paper"), markdown=True)
+    lines += ["",
+              "- *exact*: point-to-curve errors against the twin's backbone (sim only). Per-axis values are the "
+              "RMSE of each component of the residual to the closest backbone point.",
+              "- *Q'*: the paper's measure (section 5.3): per-axis RMSE against the depth camera's 3D points at "
+              "the left centerline pixels. The depth is that of the tube's surface, so Q' lies about one tube "
+              "radius in front of the axis; its z error carries that offset (about 25 mm here), in the paper as here.",
+              "- Whole-run figures pool frames like Table 2: root of the mean squared per-frame RMSE over valid "
+              "frames. Table 3's maximum error is the worst per-axis RMSE (5.5122 mm -> 5.5/680).",
+              "- fps: 1 / the median estimator time per frame on this machine (the paper: about 10 fps "
+              "including 3D plotting)."]
+    if compensation:
+        lines += ["", "## Misalignment compensation (Fig 12)", "",
+                  f"Paper mode re-run on {len(compensation['frames'])} recorded frames (evenly spread), "
+                  "with the paper's compensation (nearest row crossing of a cubic spline) and without:", "",
+                  "| paper mode | valid | RMSE x/y/z exact (mm) | RMSE x/y/z vs Q' (mm) | misalignment eq. (11) (px) |",
+                  "|---|---|---|---|---|"]
+        for variant, label in (("nearest", "with compensation"), ("none", "no compensation")):
+            v = compensation["summary"][variant]
+            lines.append(f"| {label} | {v['valid_frames']}/{v['frames']} | {_xyz(v['rmse_xyz_mm'])} | "
+                         f"{_xyz(v['qprime_rmse_xyz_mm'])} | {_num(v['misalignment_px'])} |")
+    bench_s = s.get("bench_s")
+    if bench_s:
+        lines += ["", "## Where the time went (wall-clock seconds)", "",
+                  "| " + " | ".join(bench_s) + " | loop total |", "|" + "---|" * (len(bench_s) + 1),
+                  "| " + " | ".join(f"{v:.1f}" for v in bench_s.values()) + f" | {s.get('wall_s', math.nan):.1f} |",
+                  "", "record_thread runs beside the loop (PNG encoding); record_wait is the loop waiting for it."]
+    reasons = s.get("invalid_reasons") or {}
+    if reasons:
+        lines += ["", "## Invalid frames", ""]
+        lines += [f"- {count} x {reason}" for reason, count in sorted(reasons.items(), key=lambda kv: -kv[1])]
+    lines += ["", "## Figures", ""]
+    for name, note in written.items():
+        if note.startswith("written"):
+            lines.append(f"- [{name}]({name})" + (f": {note}" if note != "written" else ""))
+            if name.endswith(".png"):
+                lines += ["", f"![{name}]({name})", ""]
+        else:
+            lines.append(f"- {name}: {note}")
+    lines += ["", f"_report written in {elapsed_s:.1f} s by `softarm report {run.path}`_", ""]
+    path.write_text("\n".join(lines), encoding="utf-8")
+
+
+def _num(value, decimals: int = 2) -> str:
+    return "n/a" if value is None or not np.isfinite(value) else f"{value:.{decimals}f}"
+
+
+def _xyz(values) -> str:
+    return " / ".join(_num(v) for v in values)
+
+
+def _evenly(items: Sequence, count: int) -> list:
+    """At most ``count`` items spread evenly over the sequence, first and last included."""
+    if count >= len(items):
+        return list(items)
+    if count == 1:
+        return [items[-1]]
+    return [items[i] for i in np.unique(np.round(np.linspace(0, len(items) - 1, count)).astype(int))]
