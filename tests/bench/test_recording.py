@@ -25,7 +25,8 @@ def frame_record(index: int, rmse: float, valid: bool = True) -> dict:
             "points_m": [[0.0, 0.1 * k, 1.0] for k in range(3)] if valid else [],
             "timings_ms": {"total": 50.0 + index, "segment": 10.0},
             "errors": errors if valid else None,
-            "qprime": {"x_mm": 1.0, "y_mm": 2.0, "z_mm": 20.0, "count": 3, "rmse_mm": math.sqrt(405)} if valid else None,
+            "qprime": ({"x_mm": 1.0, "y_mm": 2.0, "z_mm": 20.0, "count": 3, "rmse_mm": math.sqrt(405)}
+                       if valid else None),
             "gt_m": [[0.0, 0.0, 1.0], [0.0, 0.3, 1.0], [0.0, 0.6, 1.0]]}
 
 
