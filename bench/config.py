@@ -143,7 +143,7 @@ class DepthConfig:
 
     Attributes:
         source: folder of single-channel images (16-bit PNG or TIFF, or ``.npy``), one per camera
-            frame in name order, aligned with the raw LEFT image.
+            frame in name order (a looped recording starts over), aligned with the raw LEFT image.
         scale_m: metres per stored unit (0.001: millimetres, the ZED SDK's 16-bit export).
     """
 

@@ -177,13 +177,14 @@ def run_command(args) -> int:
                          report=not getattr(args, "no_report", False), argv=list(sys.argv))
     try:
         outcome = run_experiment(config, options)
-    except (ConfigError, ValueError) as e:  # bad options or schedule, found before anything moved
-        print(f"softarm run: {e}", file=sys.stderr)
-        return EXIT_USAGE
-    except (CalibrationFileError, DeviceError, OSError) as e:
+    except (CalibrationFileError, DeviceError, OSError) as e:  # a device or its calibration (a ValueError too)
         print(f"softarm run: {e}", file=sys.stderr)
         print("softarm run: nothing was moved", file=sys.stderr)
         return EXIT_FAILED
+    except (ConfigError, ValueError) as e:  # bad options or schedule, found before anything moved
+        print(f"softarm run: {e}", file=sys.stderr)
+        print("softarm run: nothing was moved", file=sys.stderr)
+        return EXIT_USAGE
     return outcome.exit_code
 
 
@@ -501,8 +502,8 @@ class _PressureDriver(threading.Thread):
 
     def __init__(self, valves, schedule: Schedule, t0: float, stop: _Stop) -> None:
         super().__init__(name="pressure-driver", daemon=True)
-        self._valves, self._schedule, self._t0, self._stop = valves, schedule, t0, stop
-        self._done = threading.Event()
+        self._valves, self._schedule, self._t0, self._stop_flag = valves, schedule, t0, stop
+        self._finished = threading.Event()
         self.error: BaseException | None = None
         self.sent: list[tuple[float, dict[str, float]]] = []
 
@@ -510,22 +511,22 @@ class _PressureDriver(threading.Thread):
         try:
             for k in range(1, len(self._schedule.change_times_s)):
                 deadline = self._t0 + float(self._schedule.change_times_s[k])
-                while not self._done.is_set() and not self._stop:
+                while not self._finished.is_set() and not self._stop_flag:
                     remaining = deadline - time.monotonic()
                     if remaining <= 0:
                         break
-                    self._done.wait(min(remaining, 0.05))
-                if self._done.is_set() or self._stop:
+                    self._finished.wait(min(remaining, 0.05))
+                if self._finished.is_set() or self._stop_flag:
                     return
                 command = self._schedule.command(k)
                 self._valves.set_pressures(command)
                 self.sent.append((time.monotonic() - self._t0, command))
         except BaseException as e:  # noqa: BLE001 - handed to the main loop, which stops the run
             self.error = e
-            self._stop.request(f"valve fault: {e}")
+            self._stop_flag.request(f"valve fault: {e}")
 
     def finish(self) -> None:
-        self._done.set()
+        self._finished.set()
         if self.is_alive():
             self.join(timeout=2.0)
 
@@ -586,12 +587,10 @@ class _DepthFolder:
         self.scale_m = scale_m
 
     def read(self, index: int) -> tuple[np.ndarray | None, float | None]:
-        """Depth of camera frame ``index`` as (uint16 units, metres per unit); (None, None) past the end."""
+        """Depth of camera frame ``index`` as (uint16 units, metres per unit); (None, None) if unreadable."""
         import cv2
 
-        if index >= len(self.files):
-            return None, None
-        path = self.files[index]
+        path = self.files[index % len(self.files)]  # a looped recording starts its depth maps over too
         depth = np.load(path) if path.suffix.lower() == ".npy" else cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         if depth is None:
             return None, None

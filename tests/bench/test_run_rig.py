@@ -1,0 +1,256 @@
+"""``softarm run`` on the rig backend against fake devices: a side-by-side video as the ZED, the valve
+board emulator on a pty, depth maps from a folder. The valves must see the commanded ramp and be
+vented at the end; bad input fails before anything moves; Ctrl-C and SIGTERM vent and finish the files.
+"""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import cv2
+import numpy as np
+import pytest
+
+from bench.recording import load_run
+from bench.run import run_command
+from estimator import CenterlineEstimator
+from hardware.emulator import BoardEmulator, BoardStateMachine
+from tests.fakes import ARM_CHANNELS, small_calibration, write_side_by_side_video
+
+REPO = Path(__file__).resolve().parents[2]
+WIDTH, HEIGHT = 320, 240
+ORANGE_BGR = (30, 110, 255)  # inside the estimator's default HSV range
+RAMP_BAR = [0.0, 0.1, 0.2, 0.3, 0.4, 0.5]
+
+
+def arm_polyline_m() -> np.ndarray:
+    """A gently bent 0.6 m arm 1 m in front of the left camera (left camera frame)."""
+    s = np.linspace(0.0, 1.0, 60)
+    return np.column_stack([0.03 * np.sin(2.5 * s), -0.3 + 0.6 * s, np.full_like(s, 1.0)])
+
+
+def draw_pair(calibration, points_m):
+    """Left and right views of a tube of 25 mm radius along ``points_m``, and the left depth in mm."""
+    images, depth = [], np.zeros((HEIGHT, WIDTH), np.uint16)
+    for side in ("left", "right"):
+        image = np.full((HEIGHT, WIDTH, 3), (170, 160, 150), np.uint8)
+        uv = calibration.project(points_m, side)
+        thickness = int(round(2 * 0.025 * calibration.K(side)[0, 0] / 1.0))
+        pts = np.round(uv * 16).astype(np.int32).reshape(-1, 1, 2)
+        cv2.polylines(image, [pts], False, ORANGE_BGR, thickness, cv2.LINE_AA, shift=4)
+        if side == "left":
+            cv2.polylines(depth, [pts], False, 1000, thickness, cv2.LINE_8, shift=4)
+        images.append(image)
+    return images[0], images[1], depth
+
+
+@pytest.fixture
+def rig_folder(tmp_path):
+    """Calibration, a 12-frame side-by-side recording of an arm and its left depth maps (mm)."""
+    folder = tmp_path / "rig"
+    folder.mkdir()
+    calibration = small_calibration(WIDTH, HEIGHT)
+    calibration.save(folder / "calib.toml")
+    left, right, depth = draw_pair(calibration, arm_polyline_m())
+    write_side_by_side_video(folder / "session.mkv", [np.hstack([left, right])] * 12)
+    (folder / "depth").mkdir()
+    for i in range(12):
+        cv2.imwrite(str(folder / "depth" / f"depth_{i:04d}.png"), depth)
+    return folder
+
+
+@pytest.fixture
+def set_commands(monkeypatch):
+    """Every SET frame the emulated board accepts, as millibar per board channel (a spy on the firmware)."""
+    seen: list[list[int]] = []
+    original = BoardStateMachine._on_set
+
+    def spy(self, seq, args, now):
+        reply = original(self, seq, args, now)
+        if not self.estop:
+            seen.append([int(a) for a in args])
+        return reply
+
+    monkeypatch.setattr(BoardStateMachine, "_on_set", spy)
+    return seen
+
+
+@pytest.fixture
+def board(set_commands):
+    with BoardEmulator(channels=7, max_pressure_bar=2.5) as emulator:
+        yield emulator
+
+
+def rig_config(folder: Path, port: str, *, duration_s=1.2, frames=6, max_bar=0.5, step_bar=0.1,
+               channels='["s1_a", "s2_a", "s3"]', calibration="calib.toml", extra="", valves_max=2.5) -> Path:
+    path = folder / "bench_rig.toml"
+    path.write_text(textwrap.dedent(f"""\
+        backend = "rig"
+
+        [experiment]
+        kind = "ramp"
+        channels = {channels}
+        max_bar = {max_bar}
+        step_bar = {step_bar}
+        duration_s = {duration_s}
+        frames = {frames}
+
+        [estimator]
+        mode = "default"
+
+        [report]
+        selected_frames = 4
+        compensation_frames = 3
+        {extra}
+        [rig.camera]
+        source = "session.mkv"
+        calibration = "{calibration}"
+        fps = 30
+        loop = true
+
+        [rig.depth]
+        source = "depth"
+        scale_m = 0.001
+
+        [rig.valves]
+        port = "{port}"
+        max_pressure_bar = {valves_max}
+
+        [rig.valves.channels]
+        """) + "\n".join(f"{name} = {i}" for i, name in enumerate(ARM_CHANNELS)) + "\n")
+    return path
+
+
+def run_args(config: Path, out: Path, **kw) -> SimpleNamespace:
+    values = {"config": str(config), "backend": None, "mode": None, "compare": False, "frames": None,
+              "out": str(out), "no_report": False}
+    values.update(kw)
+    return SimpleNamespace(**values)
+
+
+def expected_sets(levels_bar) -> list[list[int]]:
+    """SET frames of a ramp on s1_a (board channel 0), s2_a (4) and s3 (6), millibar."""
+    return [[round(1000 * b) if ch in (0, 4, 6) else 0 for ch in range(7)] for b in levels_bar]
+
+
+def test_rig_run_drives_the_commanded_ramp_and_vents(rig_folder, board, set_commands, capsys):
+    out = rig_folder / "run"
+    assert run_command(run_args(rig_config(rig_folder, board.port), out)) == 0
+    # the valves saw exactly the ramp, each level once and in order, and were vented at the end
+    assert set_commands == expected_sets(RAMP_BAR)
+    assert board.events[-1].kind == "vent" and board.events[-1].cause == "VENT command"
+    np.testing.assert_array_equal(board.setpoints_bar, np.zeros(7))
+    assert board.watchdog_trips == 0
+    run = load_run(out)
+    assert run.complete and run.backend == "rig" and not run.has_ground_truth
+    assert len(run.frames) + run.summary["dropped_frames"] == 6
+    commanded = [f["commanded_bar"]["s1_a"] for f in run.frames]
+    assert commanded == sorted(commanded) and all(c in RAMP_BAR for c in commanded)
+    assert all(f["commanded_bar"]["s1_b"] == 0 and f["chamber_bar"] is None for f in run.frames)
+    # no ground truth: nothing scored against it; the depth folder gives the paper's Q'
+    assert all(f["errors"] is None and "gt_m" not in f for f in run.frames)
+    valid = [f for f in run.frames if f["valid"]]
+    assert valid, [f["reason"] for f in run.frames]
+    assert all(f["qprime"]["count"] > 0 for f in valid)
+    assert run.summary["qprime_rmse_xyz_mm"][2] < 30.0  # the drawn depth is the axis depth
+    assert "depth maps from" in run.summary["depth_source"] and run.summary["ground_truth"] is False
+    printed = capsys.readouterr().out
+    assert "no ground truth on the rig" in printed and "Depth source: depth maps from" in printed
+    report = out / "report"
+    for name in ("summary.md", "fig12_axis_error.png", "fig13_fps.png", "fig10ab_overlay.png", "overlay.mp4"):
+        assert (report / name).stat().st_size > 500, name
+    assert "backend: **rig**" in (report / "summary.md").read_text()
+
+
+def test_a_failing_estimate_is_recorded_and_the_run_goes_on(rig_folder, board, monkeypatch):
+    calls = {"n": 0}
+    original = CenterlineEstimator.estimate
+
+    def flaky(self, left, right):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise RuntimeError("boom")
+        return original(self, left, right)
+
+    monkeypatch.setattr(CenterlineEstimator, "estimate", flaky)
+    out = rig_folder / "run"
+    assert run_command(run_args(rig_config(rig_folder, board.port), out, no_report=True)) == 0
+    run = load_run(out)
+    assert len(run.frames) >= 3 and calls["n"] == len(run.frames)
+    assert run.frames[1]["valid"] is False and run.frames[1]["reason"] == "estimator error: RuntimeError: boom"
+    assert run.frames[2]["valid"] and run.frames[-1]["valid"]
+    assert run.summary["invalid_reasons"] == {"estimator error: RuntimeError: boom": 1}
+
+
+def test_a_missing_calibration_fails_before_anything_moves(rig_folder, board, capsys):
+    out = rig_folder / "run"
+    assert run_command(run_args(rig_config(rig_folder, board.port, calibration="SN404.conf"), out)) == 1
+    err = capsys.readouterr().err
+    assert "SN404.conf: calibration file not found" in err and "nothing was moved" in err
+    assert board.frames_received == 0 and not out.exists()
+
+
+@pytest.mark.parametrize(("edits", "message"), [
+    ({"max_bar": 2.5, "valves_max": 2.0}, r"\[experiment\] max_bar: 2.5 bar exceeds the valves' limit of 2 bar"),
+    ({"channels": '["s1_a", "s4"]'}, r"\[experiment\] channels: s4 not among the valves"),
+])
+def test_a_schedule_the_valves_cannot_take_fails_before_anything_moves(rig_folder, board, capsys, edits, message):
+    out = rig_folder / "run"
+    assert run_command(run_args(rig_config(rig_folder, board.port, **edits), out)) == 2
+    assert message.replace("\\", "") in capsys.readouterr().err
+    assert "SET" not in board.commands and board.commands.get("VENT", 0) >= 2  # connected, vented, closed
+    assert not out.exists()
+
+
+def test_bad_config_names_file_and_key(rig_folder, board, capsys):
+    path = rig_config(rig_folder, board.port, extra="colour = \"red\"\n")
+    assert run_command(run_args(path, rig_folder / "run")) == 2
+    err = capsys.readouterr().err
+    assert str(path) in err and "unknown key [report] colour" in err
+    assert board.frames_received == 0
+
+
+CHILD = """
+import sys
+from bench.cli import main
+code = main(sys.argv[1:])
+print("HEAVY", sorted(m for m in sys.modules if m.split(".")[0] in ("mujoco", "pyrender", "twin", "OpenGL")))
+sys.exit(code)
+"""
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_vents_closes_and_finishes_the_files(rig_folder, board, set_commands, signum):
+    out = rig_folder / "run"
+    config = rig_config(rig_folder, board.port, duration_s=12.0, frames=120, max_bar=2.5, step_bar=0.5)
+    child = subprocess.Popen([sys.executable, "-c", CHILD, "run", "--config", str(config), "--out", str(out)],
+                             cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not any(s[0] > 0 for s in set_commands):
+            time.sleep(0.05)  # until the valves are pressurised
+        assert any(s[0] > 0 for s in set_commands), "the run never pressurised the valves"
+        assert np.any(board.setpoints_bar > 0)
+        child.send_signal(signum)
+        stdout, stderr = child.communicate(timeout=60)
+    finally:
+        if child.poll() is None:
+            child.kill()
+    assert child.returncode == {signal.SIGINT: 130, signal.SIGTERM: 143}[signum], stderr
+    np.testing.assert_array_equal(board.setpoints_bar, np.zeros(7))
+    assert board.events[-1].kind == "vent"
+    name = signal.Signals(signum).name
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["stopped"] == f"interrupted by {name}"
+    run = load_run(out)
+    assert run.complete and 1 <= len(run.frames) < 120 and run.skipped_lines == 0
+    assert all(Path(out / f["images"]["left"]).is_file() for f in run.frames)
+    assert f"{name}: stopping" in stderr and "report skipped" in stdout
+    assert "HEAVY []" in stdout  # a rig run never loads MuJoCo, pyrender or the twin
+    assert not os.path.exists(out / "report")

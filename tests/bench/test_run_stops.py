@@ -1,0 +1,108 @@
+"""Runs that end early on the twin: killed with SIGKILL (every frame but possibly the last is kept and
+``softarm report`` works on it), and stopped by a twin instability (clean stop, frames kept, vented)."""
+
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+
+import bench.factory
+from bench.config import DEFAULT_CONFIG, load_bench_config
+from bench.recording import FRAMES_FILE, load_run
+from bench.report import write_report
+from bench.run import RunOptions, run_experiment
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def short_config(folder: Path, frames: int, duration_s: float) -> Path:
+    """The twin with a short ramp (so frames come quickly), report options small."""
+    path = folder / "bench.toml"
+    path.write_text(textwrap.dedent(f"""\
+        backend = "sim"
+        [sim]
+        twin = "{DEFAULT_CONFIG.parent / 'twin.toml'}"
+        [experiment]
+        max_bar = 1.0
+        step_bar = 0.1
+        duration_s = {duration_s}
+        frames = {frames}
+        [report]
+        selected_frames = 3
+        compensation_frames = 2
+        video_scale = 0.25
+        """))
+    return path
+
+
+def test_a_killed_run_keeps_its_frames_and_reports(tmp_path):
+    out = tmp_path / "run"
+    config = short_config(tmp_path, frames=200, duration_s=20.0)
+    child = subprocess.Popen([sys.executable, "-m", "bench.cli", "run", "--config", str(config), "--out", str(out)],
+                             cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        lines = 0
+        while time.monotonic() < deadline and lines < 4:
+            time.sleep(0.05)
+            if (out / FRAMES_FILE).is_file():
+                lines = len((out / FRAMES_FILE).read_bytes().splitlines())
+        assert lines >= 4, "the run wrote no frames"
+        child.send_signal(signal.SIGKILL)
+        child.wait(timeout=30)
+    finally:
+        if child.poll() is None:
+            child.kill()
+    assert child.returncode == -signal.SIGKILL
+    run = load_run(out)
+    assert not run.complete and run.summary["stopped"] == "killed (no summary.json)"
+    assert len(run.frames) >= 4 and run.skipped_lines <= 1
+    assert [f["index"] for f in run.frames] == list(range(len(run.frames)))  # none missing but the last
+    for f in run.frames:  # a line in frames.jsonl means its images are on disk
+        assert run.image(f, "left") is not None and run.image(f, "right") is not None and run.depth(f) is not None
+    assert run.summary["frames"] == len(run.frames)
+    assert not list((out / "frames").glob("*.png.tmp*"))
+    report = write_report(out)
+    text = (report / "summary.md").read_text()
+    assert "the run was killed" in text
+    for name in ("fig12_axis_error.png", "fig13_fps.png", "fig10c_centerlines_3d.png", "overlay.mp4"):
+        assert (report / name).stat().st_size > 500, name
+
+
+def test_a_twin_instability_stops_the_run_cleanly(tmp_path, monkeypatch):
+    from twin.physics import SimulationError
+    from twin.twin import Twin
+
+    opened = []
+    original_make = bench.factory.make_devices
+    def make_and_keep(config):
+        opened.append(original_make(config))
+        return opened[-1]
+
+    monkeypatch.setattr(bench.factory, "make_devices", make_and_keep)
+    calls = {"n": 0}
+    original_advance = Twin.advance
+
+    def unstable(self, duration_s):
+        calls["n"] += 1
+        if calls["n"] == 12:
+            raise SimulationError("simulation failed at step 1234 (t = 2.4680 s, timestep 0.002 s): qpos[3] is nan",
+                                  1234, 2.468)
+        return original_advance(self, duration_s)
+
+    monkeypatch.setattr(Twin, "advance", unstable)
+    config = load_bench_config(short_config(tmp_path, frames=8, duration_s=4.0))
+    outcome = run_experiment(config, RunOptions(out=tmp_path / "run", progress=False))
+    assert outcome.exit_code == 1
+    assert outcome.stopped.startswith("twin instability: simulation failed at step 1234")
+    run = load_run(tmp_path / "run")
+    assert run.complete and run.summary["stopped"] == outcome.stopped
+    assert 1 <= len(run.frames) < 8 and run.summary["frames"] == len(run.frames)
+    devices = opened[-1]
+    assert not devices.camera.is_connected and not devices.valves.is_connected
+    np.testing.assert_array_equal(list(devices.valves.setpoints_bar.values()), np.zeros(7))
+    assert (tmp_path / "run" / "report" / "summary.md").is_file()  # the frames so far are reported

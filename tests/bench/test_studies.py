@@ -1,0 +1,81 @@
+"""``softarm study som|compare`` on two twin frames (the arm at rest and fully bent)."""
+
+import json
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from bench.studies import (
+    LAMBDAS,
+    N_CONVERGENCE,
+    N_NEURONS,
+    PAPER_TABLE1,
+    RADII,
+    _choose_table1,
+    order_error,
+    study_command,
+)
+
+
+@pytest.fixture(scope="module")
+def studies(tmp_path_factory):
+    out = tmp_path_factory.mktemp("studies")
+    codes = {which: study_command(SimpleNamespace(which=which, config=None, frames=2, out=str(out / which)))
+             for which in ("som", "compare")}
+    return out, codes
+
+
+def test_som_study_writes_fig5_and_table1(studies):
+    out, codes = studies
+    assert codes["som"] == 0
+    for name in ("fig5a_topology_vs_n.png", "fig5b_topology_vs_lambda.png", "fig5c_quantization_vs_alpha.png",
+                 "fig5d_quantization_vs_lambda.png", "som.md", "som.json"):
+        assert (out / "som" / name).stat().st_size > 500, name
+    result = json.loads((out / "som" / "som.json").read_text())
+    assert len(result["frames"]) == 2 and result["frames"][0]["t_s"] == 0.0 and result["frames"][1]["t_s"] == 58.0
+    topo = dict(zip(N_NEURONS, result["fig5a_topology_vs_n"], strict=True))
+    assert topo[20] == 0.0  # the paper's n: no topology error after sufficient training
+    assert topo[70] > 0.0  # far too many neurons: the chain folds between the two edges (Fig 5a, right)
+    assert set(result["fig5b_topology_vs_lambda"]) == {str(n) for n in N_CONVERGENCE}
+    assert all(len(v) == len(LAMBDAS) for v in result["fig5d_quantization_vs_lambda"].values())
+    quant = np.array(list(result["fig5c_quantization_vs_alpha"].values()))
+    assert quant.shape == (len(RADII), 11) and np.all(quant > 0)
+    table1 = result["table1"]
+    assert table1["N"] in RADII and table1["n"] in N_CONVERGENCE and table1["lambda"] in LAMBDAS
+    assert result["paper_table1"] == PAPER_TABLE1
+    assert "| paper | 20 | 2 | 0.2 | 15 |" in (out / "som" / "som.md").read_text()
+
+
+def test_compare_study_writes_figs_7_8_and_the_table(studies):
+    out, codes = studies
+    assert codes["compare"] == 0
+    for name in ("fig7_centerlines.png", "fig8_thinning_vs_som.png", "compare_accuracy_time.png", "compare.md",
+                 "compare.json"):
+        assert (out / "compare" / name).stat().st_size > 500, name
+    methods = json.loads((out / "compare" / "compare.json").read_text())["methods"]
+    assert set(methods) == {"som", "competitive", "kmeans++", "thinning", "skeleton"}
+    som = methods["som"]
+    assert som["topology_error"] == 0.0 and som["order_error"] == 0.0  # SOM output is ordered (section 4.3)
+    assert som["pipeline"]["default"]["valid"] == 2 and som["pipeline"]["default"]["rmse_mm"] < 10.0
+    for m in methods.values():
+        assert m["ms_2d"] > 0 and m["pipeline"]["paper"]["frames"] == 2
+
+
+def test_table1_choice_follows_the_papers_criteria():
+    topo_n = [0.0 if n <= 30 else 0.1 for n in N_NEURONS]
+    topo_lam = {n: [0.0 if lam >= (10 if n <= 20 else 40) else 0.05 for lam in LAMBDAS] for n in N_CONVERGENCE}
+    alphas = 11
+    quant_alpha = {r: [10.0 + r + abs(a - 4) for a in range(alphas)] for r in RADII}  # best: N = 2, the 5th alpha
+    quant_lam = {a: [10.0 + 5.0 / lam for lam in LAMBDAS] for a in (0.05, 0.1, 0.15, 0.2, 0.25, 0.3)}
+    table = _choose_table1(topo_n, topo_lam, quant_alpha, quant_lam)
+    assert table["N"] == 2 and table["alpha0"] == 0.2 and table["n_limit"] == 30
+    assert table["lambda"] == 20  # 10 + 5/20 is within 2 % of 10 + 5/50 (and stays so); 10 + 5/15 is not
+    assert table["n"] == 20  # 25 and 30 need 40 epochs to lose their topology errors
+
+
+def test_order_error_counts_steps_backwards():
+    curve = np.column_stack([np.zeros(50), np.linspace(0, 100, 50)])
+    forward = np.column_stack([np.zeros(5), [0, 20, 40, 60, 80]])
+    assert order_error(forward, curve) == 0.0
+    assert order_error(forward[[0, 2, 1, 3, 4]], curve) == 0.25
