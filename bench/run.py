@@ -263,7 +263,8 @@ def _run_loop(config, options, schedule, est_configs, devices, writer, depth_sou
             record = _process(capture, estimators, calibration, totals)
             start = time.perf_counter()
             frame = capture.frame
-            writer.submit(record, frame.left, frame.right,
+            # copies: the writer encodes them while the next frame is captured (a driver may reuse its buffers)
+            writer.submit(record, frame.left.copy(), frame.right.copy(),
                           capture.depth_units if (sim and config.recording.depth) else None)
             totals["record_wait"] += time.perf_counter() - start
             for part in ("physics", "render", "truth"):

@@ -88,7 +88,8 @@ def board(set_commands):
 
 
 def rig_config(folder: Path, port: str, *, duration_s=1.2, frames=6, max_bar=0.5, step_bar=0.1,
-               channels='["s1_a", "s2_a", "s3"]', calibration="calib.toml", extra="", valves_max=2.5) -> Path:
+               channels='["s1_a", "s2_a", "s3"]', calibration="calib.toml", extra="", valves_max=2.5,
+               loop="true") -> Path:
     path = folder / "bench_rig.toml"
     path.write_text(textwrap.dedent(f"""\
         backend = "rig"
@@ -112,7 +113,7 @@ def rig_config(folder: Path, port: str, *, duration_s=1.2, frames=6, max_bar=0.5
         source = "session.mkv"
         calibration = "{calibration}"
         fps = 30
-        loop = true
+        loop = {loop}
 
         [rig.depth]
         source = "depth"
@@ -186,6 +187,17 @@ def test_a_failing_estimate_is_recorded_and_the_run_goes_on(rig_folder, board, m
     assert run.frames[1]["valid"] is False and run.frames[1]["reason"] == "estimator error: RuntimeError: boom"
     assert run.frames[2]["valid"] and run.frames[-1]["valid"]
     assert run.summary["invalid_reasons"] == {"estimator error: RuntimeError: boom": 1}
+
+
+def test_the_end_of_a_recording_stops_the_run_cleanly(rig_folder, board, capsys):
+    out = rig_folder / "run"
+    config = rig_config(rig_folder, board.port, duration_s=6.0, frames=30, loop="false")
+    assert run_command(run_args(config, out, no_report=True)) == 1
+    run = load_run(out)
+    assert run.complete and len(run.frames) == 12  # the recording's 12 frames, then it ended
+    assert run.summary["stopped"].startswith("the camera's recording ended")
+    np.testing.assert_array_equal(board.setpoints_bar, np.zeros(7))
+    assert "the 12 frames so far are kept" in capsys.readouterr().err
 
 
 def test_a_missing_calibration_fails_before_anything_moves(rig_folder, board, capsys):

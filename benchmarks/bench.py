@@ -1,0 +1,91 @@
+"""Speed of ``softarm run``: where the wall-clock time of a run goes.
+
+    python benchmarks/bench.py                    # the default run: the paper's ramp, 690 frames, report included
+    python benchmarks/bench.py --frames 60        # a quicker run of the same experiment
+    python benchmarks/bench.py --run runs/<dir>   # the split of a run already recorded (no new run)
+
+Prints the split between start-up (twin, renderer, first settle), physics, rendering, ground truth,
+estimation, scoring, recording (the writer thread encodes PNGs beside the loop; the loop only
+waits when it falls behind) and the report. Target (issue 5): the default run, 690 frames,
+estimator and report included, within 3 minutes on a 2-core machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench.config import load_bench_config  # noqa: E402
+from bench.run import RunOptions, run_experiment  # noqa: E402
+
+TARGET_S = 180.0
+
+
+def print_split(summary: dict, frames_dir: Path | None, total_s: float | None, report_s: float | None) -> None:
+    bench_s = summary.get("bench_s", {})
+    loop_s = summary.get("wall_s", float("nan"))
+    frames = summary.get("frames", 0)
+    print(f"frames: {frames} ({summary.get('valid_frames')} valid)")
+    if total_s is not None:
+        verdict = "met" if total_s <= TARGET_S else "NOT met"
+        print(f"total wall time: {total_s:.1f} s   target <= {TARGET_S:.0f} s: {verdict}")
+        startup = total_s - loop_s - (report_s or 0.0)
+        print(f"  start-up (twin, renderer, settle, folder): {startup:6.1f} s")
+    print(f"  loop:                                       {loop_s:6.1f} s ({frames / loop_s:.1f} frames/s)")
+    rows = [("physics (MuJoCo)", "physics"), ("rendering (stereo pair + depth)", "render"),
+            ("ground truth (backbone)", "truth"), ("estimation", "estimate"), ("scoring (exact + Q')", "score"),
+            ("recording: loop waiting for the writer", "record_wait")]
+    for label, key in rows:
+        value = bench_s.get(key, float("nan"))
+        print(f"    {label:40s} {value:6.1f} s  {1000 * value / max(frames, 1):6.1f} ms/frame")
+    accounted = sum(bench_s.get(key, 0.0) for _, key in rows)
+    print(f"    {'other (JSON, progress, bookkeeping)':40s} {loop_s - accounted:6.1f} s")
+    writer = bench_s.get("record_thread", float("nan"))
+    print(f"  recording thread (PNG + depth + JSON, beside the loop): {writer:.1f} s "
+          f"({1000 * writer / max(frames, 1):.1f} ms/frame)")
+    if report_s is not None:
+        print(f"  report (plots, Fig 12 re-runs, video):      {report_s:6.1f} s")
+    est = summary.get("estimator_ms", {})
+    if est:
+        print("  estimator stages, median ms per frame: " + ", ".join(f"{k} {v:.1f}" for k, v in est.items()))
+    if frames_dir is not None and frames_dir.is_dir():
+        size = sum(p.stat().st_size for p in frames_dir.iterdir())
+        print(f"  recorded frames: {size / 1e9:.2f} GB ({size / max(frames, 1) / 1e6:.2f} MB per frame)")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--frames", type=int, help="frames over the experiment (default: the config's, 690)")
+    parser.add_argument("--config", help="bench config (default models/bench.toml)")
+    parser.add_argument("--compare", action="store_true", help="also run the paper mode on every frame")
+    parser.add_argument("--no-report", action="store_true", help="time the run without its report")
+    parser.add_argument("--out", help="run folder to keep (default: a temporary folder, deleted)")
+    parser.add_argument("--run", help="print the split of an existing run folder instead of running")
+    args = parser.parse_args(argv)
+    print(f"machine: {os.cpu_count()} CPUs")
+    if args.run:
+        summary = json.loads((Path(args.run) / "summary.json").read_text())
+        print_split(summary, Path(args.run) / "frames", None, None)
+        return 0
+    config = load_bench_config(args.config)
+    with tempfile.TemporaryDirectory(prefix="softarm-bench-") as tmp:
+        out = Path(args.out) if args.out else Path(tmp) / "run"
+        start = time.perf_counter()
+        outcome = run_experiment(config, RunOptions(frames=args.frames, compare=args.compare, out=out,
+                                                    report=not args.no_report, progress=True))
+        total = time.perf_counter() - start
+        print()
+        print_split(outcome.summary, out / "frames", total, outcome.timings_s.get("report"))
+    return 0 if outcome.exit_code == 0 else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
