@@ -26,6 +26,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from bench.config import BenchConfig, ConfigError, load_bench_config
@@ -589,8 +590,6 @@ class _DepthFolder:
 
     def read(self, index: int) -> tuple[np.ndarray | None, float | None]:
         """Depth of camera frame ``index`` as (uint16 units, metres per unit); (None, None) if unreadable."""
-        import cv2
-
         path = self.files[index % len(self.files)]  # a looped recording starts its depth maps over too
         depth = np.load(path) if path.suffix.lower() == ".npy" else cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         if depth is None:
