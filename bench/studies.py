@@ -36,11 +36,10 @@ from bench.config import BenchConfig, ConfigError, load_bench_config
 from bench.experiments import make_schedule
 from bench.recording import new_run_folder, write_json
 from estimator import CenterlineEstimator, EstimatorConfig, StereoCalibration
-from estimator.clustering import competitive_learning, kmeans_plus_plus, order_greedy
+from estimator.centerline import centerline_nodes
 from estimator.config import CENTERLINES
 from estimator.metrics import closest_points_on_polyline, quantization_error, score_against_backbone, topology_error
 from estimator.segmentation import arm_mask, contour_points
-from estimator.skeleton import ordered_skeleton_path, resample_polyline, thinning_centerline
 from estimator.som import linear_init, som_online
 
 DEFAULT_FRAMES = 3
@@ -312,28 +311,10 @@ def _som_markdown(result: dict, headline: list[str], path: Path) -> None:
 
 
 def nodes_2d(method: str, mask: np.ndarray, samples: np.ndarray, cfg: EstimatorConfig) -> np.ndarray:
-    """The 2D centerline of one method on a (rectified, full-frame) mask, as the paper-mode pipeline computes it.
-
-    SOM and competitive learning start from the linear initialisation; K-Means++ centres are
-    ordered greedily from the top end (as the pipeline does; Algorithm 3 alone outputs no order);
-    thinning takes skeleton pixels in row order at equal intervals; the skeleton walk follows it.
-    """
-    n = cfg.n_points
-    if method == "som":
-        return som_online(samples, linear_init(samples, n), epochs=cfg.som_epochs, alpha0=cfg.som_alpha0,
-                          lam=float(cfg.som_epochs), radius=cfg.som_radius, sigma0=cfg.som_sigma, seed=cfg.som_seed,
-                          time=cfg.som_time)
-    if method == "competitive":
-        return competitive_learning(samples, linear_init(samples, n), epochs=cfg.som_epochs, alpha=cfg.som_alpha0,
-                                    seed=cfg.som_seed)
-    if method == "kmeans++":
-        centres = kmeans_plus_plus(samples, n, seed=cfg.som_seed)
-        return order_greedy(centres, samples[np.argmin(samples[:, 1])])
-    if method == "thinning":
-        return thinning_centerline(mask, n)
-    if method == "skeleton":
-        return resample_polyline(ordered_skeleton_path(mask), n)
-    raise ValueError(f"method: expected one of {CENTERLINES}, got {method!r}")
+    """The 2D centerline of one method on a (rectified, full-frame) mask, cold, as the pipeline computes it."""
+    if method not in CENTERLINES:
+        raise ValueError(f"method: expected one of {CENTERLINES}, got {method!r}")
+    return centerline_nodes(mask, samples, cfg.replace(centerline=method))
 
 
 def order_error(nodes: np.ndarray, reference: np.ndarray) -> float:

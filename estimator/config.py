@@ -80,6 +80,8 @@ class EstimatorConfig:
             means part of the arm is hidden (folded behind itself, out of view): invalid.
             None disables the check.
         min_length_fraction: see ``arm_length_m``.
+        max_length_fraction: an estimate longer than this fraction of ``arm_length_m`` comes from
+            wrongly matched left and right centerlines (its points scatter in depth): invalid.
         max_gap_widths: a stretch longer than this many arm widths without a clean silhouette
             chord (baseplates hide about one) means parts overlap or are occluded: invalid.
         max_width_ratio: a single tube's apparent width is 2 r / B times its disparity; a
@@ -131,6 +133,7 @@ class EstimatorConfig:
     max_self_approach: float = 0.8
     max_gap_widths: float = 2.0
     min_length_fraction: float = 0.7
+    max_length_fraction: float = 1.5
     max_width_ratio: float = 1.35
     max_wide_fraction: float = 0.08
 
@@ -173,6 +176,7 @@ class EstimatorConfig:
                self.arm_length_m)
         _check(0 <= self.min_length_fraction < 1, "min_length_fraction", "a fraction in [0, 1)",
                self.min_length_fraction)
+        _check(self.max_length_fraction > 1, "max_length_fraction", "a fraction above 1", self.max_length_fraction)
         _check(self.max_gap_widths > 0, "max_gap_widths", "a positive number", self.max_gap_widths)
         _check(self.max_width_ratio > 1, "max_width_ratio", "a ratio above 1", self.max_width_ratio)
         _check(0 < self.max_wide_fraction <= 1, "max_wide_fraction", "a fraction in (0, 1]", self.max_wide_fraction)

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 from estimator.calibration import StereoCalibration
-from estimator.clustering import competitive_learning, kmeans_plus_plus, order_greedy
+from estimator.centerline import centerline_nodes
 from estimator.config import EstimatorConfig
 from estimator.correspondence import compensate_nodes, match_rows
 from estimator.profile import BASE_RAMP_WIDTHS, BASE_SKIP_WIDTHS, base_ramp, measured_radius_m, with_width_cue
@@ -37,9 +37,8 @@ from estimator.segmentation import (
     mask_points,
     remove_small_regions,
 )
-from estimator.skeleton import ordered_skeleton_path, resample_polyline, thinning_centerline
+from estimator.skeleton import resample_polyline
 from estimator.smoothing import polynomial_smooth, robust_spline_profile
-from estimator.som import linear_init, som_batch, som_online
 from estimator.triangulation import triangulate
 
 COARSE_SCALE = 4
@@ -111,6 +110,24 @@ class CenterlineEstimator:
     def reset(self) -> None:
         """Forget the previous frame: the next estimate starts cold."""
         self._warm = {side: None for side in SIDES}
+
+    def warm_up(self) -> None:
+        """Compile the numba stages now, on a synthetic pair, so the first real frame is not slow.
+
+        The compiled code is cached on disk; on a fresh install the first estimate would
+        otherwise pay about a second of compilation. Leaves the warm-start state empty.
+        """
+        w, h = self.calibration.image_size
+        images = []
+        for side, shift in (("left", 0.0), ("right", -0.1 * w)):
+            image = np.full((h, w, 3), (200, 190, 180), np.uint8)
+            top, bottom = np.array([[0.55 * w + shift, 0.2 * h]]), np.array([[0.55 * w + shift, 0.8 * h]])
+            ends = [self._rect.unrectify_points(self._rect.rectify_points(p, "left"), side)[0] for p in (top, bottom)]
+            cv2.line(image, tuple(int(v) for v in ends[0]), tuple(int(v) for v in ends[1]), (20, 110, 245),
+                     max(int(0.04 * h), 3))
+            images.append(image)
+        self.estimate(*images)
+        self.reset()
 
     # --- public entry point -------------------------------------------------------------
 
@@ -201,10 +218,9 @@ class CenterlineEstimator:
         with _timed(timings, "centerline"):
             warm = self._warm[side]
             hint = self._base_hint - offset if (side == "left" and self._base_hint is not None) else None
-            nodes = self._centerline(mask, samples, None if warm is None else warm - offset, hint)
+            nodes = centerline_nodes(mask, samples, cfg, warm=None if warm is None else warm - offset, base_hint=hint)
             if len(nodes) < 3:
                 raise _NoArmError(f"no centerline found in the {side} image")
-            nodes = self._orient(nodes, hint, warm is not None)
         curve = None
         width = 0.0
         if cfg.medial_refinement:
@@ -239,53 +255,6 @@ class CenterlineEstimator:
         x0, y0, x1, y1 = (v * COARSE_SCALE for v in box)
         m = cfg.roi_margin_px
         return max(x0 - m, 0), max(y0 - m, 0), min(x1 + m, w), min(y1 + m, h)
-
-    def _centerline(self, mask: np.ndarray, samples: np.ndarray, warm: np.ndarray | None,
-                    hint: np.ndarray | None) -> np.ndarray:
-        """The 2D centerline stage: ordered nodes (ROI pixels) from the chosen method."""
-        cfg = self.config
-        n = cfg.n_points
-        if cfg.centerline == "thinning":
-            return thinning_centerline(mask, n)
-        if cfg.centerline == "skeleton":
-            return resample_polyline(ordered_skeleton_path(mask, hint), n)
-        if cfg.centerline == "kmeans++":
-            centres = kmeans_plus_plus(samples, n, seed=cfg.som_seed)
-            start = hint if hint is not None else samples[np.argmin(samples[:, 1])]
-            return order_greedy(centres, start)
-        if warm is not None:
-            init = warm
-        elif cfg.mode == "default":
-            init = self._cold_start(mask, hint)
-        else:
-            init = linear_init(samples, n)
-        if cfg.centerline == "competitive":
-            return competitive_learning(samples, init, epochs=cfg.som_epochs, alpha=cfg.som_alpha0, seed=cfg.som_seed)
-        nodes = init
-        if cfg.som_schedule == "online":
-            nodes = som_online(samples, nodes, epochs=cfg.som_epochs, alpha0=cfg.som_alpha0, lam=float(cfg.som_epochs),
-                               radius=cfg.som_radius, sigma0=cfg.som_sigma, seed=cfg.som_seed, time=cfg.som_time,
-                               compiled=cfg.som_compiled)
-        return som_batch(samples, nodes, iterations=cfg.som_refine_iterations)
-
-    def _cold_start(self, mask: np.ndarray, hint: np.ndarray | None) -> np.ndarray:
-        """Ordered initial nodes from the skeleton (half resolution), robust to U and S shapes."""
-        half = cv2.resize(mask, (mask.shape[1] // 2, mask.shape[0] // 2), interpolation=cv2.INTER_AREA)
-        half = np.where(half >= 128, 255, 0).astype(np.uint8)
-        path = ordered_skeleton_path(half, None if hint is None else hint / 2)
-        if len(path) < 2:
-            return linear_init(mask_points(mask, 2), self.config.n_points)
-        return resample_polyline(path * 2.0 + 0.5, self.config.n_points)
-
-    def _orient(self, nodes: np.ndarray, hint: np.ndarray | None, warm: bool) -> np.ndarray:
-        """Base first: keep a warm chain's order; else the end nearest the base hint or the top edge."""
-        if warm:
-            return nodes
-        if hint is not None:
-            flip = np.linalg.norm(nodes[-1] - hint) < np.linalg.norm(nodes[0] - hint)
-        else:
-            flip = nodes[-1, 1] < nodes[0, 1]
-        return nodes[::-1].copy() if flip else nodes
 
     def _orient_right_like_left(self, sides: dict[str, _Side]) -> None:
         """Make the right chain start at the same end as the left one (same rows after rectification)."""
@@ -378,14 +347,18 @@ class CenterlineEstimator:
                               f"of radius {radius * 1e3:.0f} mm at that depth")
 
     def _check_length(self, points: np.ndarray) -> None:
-        """Raise when the estimate is much shorter than the arm: part of it is hidden."""
+        """Raise when the estimate is much shorter than the arm (part of it is hidden) or much
+        longer (left and right centerlines were matched wrongly: points scatter in depth)."""
         cfg = self.config
         if cfg.arm_length_m is None:
             return
         length = _polyline_length(points)
         if length < cfg.min_length_fraction * cfg.arm_length_m:
             raise _NoArmError(f"only {length * 1e3:.0f} mm of the {cfg.arm_length_m * 1e3:.0f} mm arm is visible "
-                         "(folded behind itself or out of view)")
+                              "(folded behind itself or out of view)")
+        if length > cfg.max_length_fraction * cfg.arm_length_m:
+            raise _NoArmError(f"implausible estimate: {length * 1e3:.0f} mm long for a {cfg.arm_length_m * 1e3:.0f} mm "
+                              "arm (left and right centerlines matched wrongly)")
 
     def _disparity_points(self, uv_left: np.ndarray, disparity: np.ndarray) -> np.ndarray:
         """(M, 3) rectified-frame points from left pixels and disparities (eqs. 7-8)."""

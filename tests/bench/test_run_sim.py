@@ -22,7 +22,9 @@ FRAMES = 20
 # Targets of the regression, on the paper's ramp (58 s, 0 -> 2.5 bar) captured in 20 frames.
 # Measured on 2026-11-22 (estimator working tree of that day): default mode 20/20 valid, RMSE 3.60 mm,
 # per axis 1.24 / 1.06 / 3.21 mm, largest point error 23.2 mm, mean tip 8.4 mm, Q' 3.25 / 4.67 / 27.9 mm;
-# paper mode 20/20 valid, median per-frame RMSE 32.8 mm, pooled 105 mm (its outliers reach a metre).
+# paper mode 14/20 valid (the six frames where the arm forms a U come back invalid: the literal
+# compensation matches the wrong branch and the estimate is implausibly long), median per-frame RMSE
+# 26.0 mm, pooled 30.0 mm, per axis 6.7 / 6.5 / 28.5 mm.
 REGRESSION_TARGETS = {
     "default": {"valid_fraction_min": 0.95, "rmse_mm_max": 5.0, "rmse_xyz_mm_max": (2.0, 2.0, 4.5), "max_mm_max": 35.0,
                 "tip_mm_max": 12.0},
@@ -31,7 +33,7 @@ REGRESSION_TARGETS = {
     "default_qprime": {"xy_mm_max": (5.0, 6.5), "z_mm_band": (15.0, 40.0)},
     # The paper mode is the reproduction baseline: valid on most frames, clearly worse than the default
     # mode, within this band.
-    "paper": {"valid_fraction_min": 0.8, "median_rmse_mm_max": 60.0, "rmse_mm_max": 200.0},
+    "paper": {"valid_fraction_min": 0.6, "median_rmse_mm_max": 40.0, "rmse_mm_max": 45.0},
 }
 
 

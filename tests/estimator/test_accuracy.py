@@ -66,6 +66,10 @@ def test_default_mode_holds_where_the_arm_crosses_rows_twice(name):
     points, joints = u_shapes()[name]
     scene = render_scene(calib, points, joints)
     default = cold_scores({name: scene}, "default")[name]
-    paper = cold_scores({name: scene}, "paper")[name]
     assert default["rmse_mm"] < 5.0 and default["tip_mm"] < 15.0
-    assert paper["rmse_mm"] > 5 * default["rmse_mm"]
+    # the paper mode either flags the frame (its estimate is implausibly long) or is far off
+    paper = CenterlineEstimator(calib, EstimatorConfig(mode="paper")).estimate(scene.left, scene.right)
+    if paper.valid:
+        assert score_against_backbone(paper.points, scene.gt_points)["rmse_mm"] > 5 * default["rmse_mm"]
+    else:
+        assert "implausible" in paper.reason

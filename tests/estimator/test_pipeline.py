@@ -111,3 +111,18 @@ def test_every_centerline_stage_runs_the_full_3d_pipeline(cold_scenes, mode, cen
     rmse = score_against_backbone(result.points, scene.gt_points)["rmse_mm"]
     if centerline in ("som", "skeleton", "thinning"):  # this shape is monotonic down the rows
         assert rmse < (5.0 if mode == "default" else 60.0)
+
+
+def test_warm_up_compiles_and_leaves_no_warm_state(zed_calibration):
+    for mode in ("default", "paper"):
+        est = CenterlineEstimator(zed_calibration, EstimatorConfig(mode=mode))
+        est.warm_up()
+        assert all(nodes is None for nodes in est._warm.values())
+
+
+def test_scattered_estimates_are_invalid_not_returned(cold_scenes):
+    """A paper-mode estimate far longer than the arm (rows matched on the wrong branch) is flagged."""
+    scene = cold_scenes["raw/c_bend"]
+    strict = EstimatorConfig(mode="paper", arm_length_m=0.2, max_length_fraction=1.5, min_length_fraction=0.1)
+    result = CenterlineEstimator(scene.calibration, strict).estimate(scene.left, scene.right)
+    assert not result.valid and "implausible estimate" in result.reason
