@@ -247,6 +247,8 @@ def _check_schedule(schedule: Schedule, valves) -> None:
 def _run_loop(config, options, schedule, est_configs, devices, writer, depth_source, stop) -> RunOutcome:
     calibration = devices.camera.calibration
     estimators = {key: CenterlineEstimator(calibration, cfg) for key, cfg in est_configs.items()}
+    for estimator in estimators.values():  # compile before the clock starts (a rig run is real time)
+        estimator.warm_up()
     sim = devices.twin is not None
     writer.write_calibration(calibration)
     writer.write_config(_resolved_config(config, options, schedule, est_configs, devices), config.path)
