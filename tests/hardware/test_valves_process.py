@@ -29,6 +29,7 @@ bank.connect()
 bank.set_pressures([1.0, 2.0])
 print("ready", flush=True)
 if mode == "exit":
+    sys.stdin.readline()  # wait until the parent has seen the set-points
     sys.exit(0)  # no close(): the atexit hook must vent
 if mode == "stall":
     sys.stdin.readline()  # the parent stops us (SIGSTOP) before this returns
@@ -67,6 +68,9 @@ def test_the_process_vents_on_its_way_out(mode, signum):
             np.testing.assert_allclose(board.setpoints_bar, [1.0, 2.0], atol=board.lsb_bar)
             if signum is not None:
                 child.send_signal(signum)
+            else:
+                child.stdin.write("exit now\n")
+                child.stdin.flush()
             child.wait(timeout=10)
         finally:
             child.kill()
