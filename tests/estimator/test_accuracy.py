@@ -51,8 +51,18 @@ def test_default_mode_warm_sequence(bending_sequence):
 
 
 def test_paper_mode_stays_in_its_band(cold_scenes, bending_sequence):
-    scores = list(cold_scores(cold_scenes, "paper").values()) + sequence_scores(bending_sequence, "paper")
-    assert pooled(scores) <= 25.0
+    """The reproduction baseline: <= 25 mm over the same frames as the default mode's targets.
+
+    Measured: cold single frames 25.1 mm pooled (raw pair 26.1, rectified pair 24.0), the warm
+    sequence 21.5 mm, all 40 frames 22.4 mm. Cold frames alone sit at the edge of the band: the
+    online SOM's last epochs (alpha near 0.1) leave each node a few pixels off, differently in each
+    image. The band is not tuned: each set has its own limit, so a regression in either shows.
+    """
+    cold = list(cold_scores(cold_scenes, "paper").values())
+    warm = sequence_scores(bending_sequence, "paper")
+    assert pooled(cold + warm) <= 25.0
+    assert pooled(warm) <= 25.0
+    assert pooled(cold) <= 27.0
 
 
 @pytest.mark.parametrize("name", sorted(u_shapes()))
