@@ -22,6 +22,7 @@ import sys
 import threading
 import time
 import tty
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,6 +34,7 @@ from hardware.protocol import (
     PROTOCOL_VERSION,
     BoardStatus,
     BoardVersion,
+    Frame,
     LineSplitter,
     ProtocolError,
     decode,
@@ -84,6 +86,7 @@ class BoardStateMachine:
         self.events: list[BoardEvent] = []
         self.frames_received = 0
         self.commands: collections.Counter[str] = collections.Counter()  # intact frames received, by verb
+        self.recent_commands: collections.deque[str] = collections.deque(maxlen=256)  # their verbs, in order
         self.naks_sent = 0
         self.watchdog_trips = 0
         self._handlers = {"VER": self._on_ver, "STAT": self._on_stat, "HB": self._on_stat, "SET": self._on_set,
@@ -120,6 +123,7 @@ class BoardStateMachine:
             return self._nak(None, "FRAME")
         self.frames_received += 1
         self.commands[frame.verb] += 1
+        self.recent_commands.append(frame.verb)
         self._deadline = now + self._watchdog_s  # any intact frame feeds the watchdog
         handler = self._handlers.get(frame.verb)
         if handler is None:
@@ -212,6 +216,7 @@ class BoardEmulator:
         self._thread: threading.Thread | None = None
         self._fds: tuple[int, int] | None = None
         self._link_up = True
+        self._rewrite: Callable[[Frame, Frame], Frame] | None = None
         self.port: str | None = None
 
     # --- life cycle -----------------------------------------------------------------------
@@ -284,6 +289,12 @@ class BoardEmulator:
             return dict(self._board.commands)
 
     @property
+    def recent_commands(self) -> list[str]:
+        """Verbs of the last 256 intact frames received, oldest first (the last one is ``[-1]``)."""
+        with self._lock:
+            return list(self._board.recent_commands)
+
+    @property
     def naks_sent(self) -> int:
         with self._lock:
             return self._board.naks_sent
@@ -307,6 +318,16 @@ class BoardEmulator:
     def restore_link(self) -> None:
         self._link_up = True
 
+    def rewrite_replies(self, rewrite: Callable[[Frame, Frame], Frame] | None) -> None:
+        """Simulate a faulty firmware: send ``rewrite(command, reply)`` instead of each reply.
+
+        ``command`` is the frame the board received (a garbage line arrives as ``Frame(None,
+        "GARBAGE")``), ``reply`` the correct answer, already applied to the board's state. The
+        rewritten frame is encoded with a valid checksum, so the host reads a well-framed reply
+        with the wrong content. ``None`` restores correct replies.
+        """
+        self._rewrite = rewrite
+
     # --- serving --------------------------------------------------------------------------
 
     def _serve(self) -> None:
@@ -324,6 +345,14 @@ class BoardEmulator:
                 for line in splitter.feed(data):
                     with self._lock:
                         reply = self._board.receive(line, time.monotonic())
+                    rewrite = self._rewrite
+                    if rewrite is not None:
+                        try:
+                            command = decode(line)
+                        except ProtocolError:
+                            command = Frame(None, "GARBAGE")
+                        answer = rewrite(command, decode(reply))
+                        reply = encode(answer.seq, answer.verb, *answer.args)
                     if self._reply_delay_s:
                         time.sleep(self._reply_delay_s)
                     with contextlib.suppress(OSError):  # nobody reading: a UART would drop the bytes too

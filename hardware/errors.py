@@ -13,6 +13,14 @@ class LinkLostError(DeviceError, ConnectionError):
     """A device stopped answering; valves have been vented where possible."""
 
 
+class BoardReplyError(DeviceError):
+    """The valve board answered with a well-framed reply whose fields the host cannot read.
+
+    A firmware or protocol mismatch, or a corrupted board: the host stops trusting it, vents
+    where possible and refuses set-points until it reconnects.
+    """
+
+
 class EStopError(DeviceError):
     """The valve board's e-stop is latched: every valve is vented and set-points are refused."""
 

@@ -4,7 +4,8 @@ Safety lives on both ends. Here: set-points are validated by ``ValveBank`` befor
 encoded (and capped again at the millibar step), heartbeats keep the board's watchdog fed,
 every reply's status is checked, and the valves are vented on ``close()``, on an exception in
 the caller's ``with`` block, on SIGINT/SIGTERM and at interpreter exit. A link that stops
-answering, a watchdog vent or a latched e-stop is never silent: the next call raises.
+answering, a watchdog vent, a latched e-stop or a reply the host cannot read is never silent:
+the heartbeat records it, and ``check()`` or the next call raises it.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import serial
 
-from hardware.errors import DeviceError, EStopError, LinkLostError, NotConnectedError
+from hardware.errors import BoardReplyError, DeviceError, EStopError, LinkLostError, NotConnectedError
 from hardware.interfaces import ValveBank
 from hardware.protocol import (
     ACK,
@@ -128,7 +129,8 @@ class SerialValveBank(ValveBank):
         self._splitter, self._lines = LineSplitter(), collections.deque()
         try:
             self._serial.reset_input_buffer()
-            self._version = self._check_version(BoardVersion.parse(self._exchange("VER").args))
+            self._version = None
+            self._version = self._check_version(self._exchange("VER")[1])
             self._exchange("VENT", connecting=True)
         except BaseException:
             self._serial.close()
@@ -144,7 +146,7 @@ class SerialValveBank(ValveBank):
         sent = [0] * self._version.channels
         for board_channel, bar in zip(self._board_channels, setpoints_bar, strict=True):
             sent[board_channel] = bar_to_mbar(float(bar), self.max_pressure_bar)  # the last check before the wire
-        status = BoardStatus.parse(self._exchange("SET", *sent, refuse_if_faulted=True).args)
+        _, status = self._exchange("SET", *sent, refuse_if_faulted=True)
         tolerance_mbar = self._version.lsb_umbar / 2000.0 + 1.0
         for name, board_channel in zip(self.channels, self._board_channels, strict=True):
             applied = status.setpoints_mbar[board_channel]
@@ -171,6 +173,23 @@ class SerialValveBank(ValveBank):
         ser, self._serial = self._serial, None
         if ser is not None:
             ser.close()
+
+    def check(self) -> None:
+        """Raise the fault recorded since connect, if any (see ``ValveBank.check``).
+
+        The heartbeat thread records what it meets between commands: the board stopped answering
+        (``LinkLostError``), its watchdog vented the valves (``LinkLostError``), its e-stop is
+        latched (``EStopError``), or it answered with fields the host cannot read
+        (``BoardReplyError``). The fault stays until ``connect()`` again (or ``clear_estop()`` for
+        an e-stop), so every call raises it; a closed or never connected bank has nothing to report.
+        """
+        if self.is_connected:
+            self._raise_fault()
+
+    @property
+    def fault(self) -> DeviceError | None:
+        """The fault ``check()`` would raise, without raising it (None while all is well or disconnected)."""
+        return self._fault if self.is_connected else None
 
     def __exit__(self, exc_type, exc, tb) -> None:
         try:
@@ -210,7 +229,7 @@ class SerialValveBank(ValveBank):
             raise NotConnectedError(f"{self!r}: status() before connect()")
         if self._link_dead:
             self._raise_fault()
-        return BoardStatus.parse(self._exchange("STAT").args)
+        return self._exchange("STAT")[1]
 
     def clear_estop(self) -> None:
         """Clear a latched e-stop (after the button was released); set-points restart from 0 bar.
@@ -220,7 +239,7 @@ class SerialValveBank(ValveBank):
         """
         if not self.is_connected:
             raise NotConnectedError(f"{self!r}: clear_estop() before connect()")
-        status = BoardStatus.parse(self._exchange("CLR", connecting=True).args)
+        _, status = self._exchange("CLR", connecting=True)
         if status.estop:
             raise EStopError(f"{self!r}: the board still reports its e-stop; release it and try again")
         if isinstance(self._fault, EStopError):
@@ -229,18 +248,31 @@ class SerialValveBank(ValveBank):
 
     # --- the link -------------------------------------------------------------------------
 
-    def _exchange(self, verb: str, *args: object, connecting: bool = False, refuse_if_faulted: bool = False) -> Frame:
+    def _exchange(self, verb: str, *args: object, connecting: bool = False,
+                  refuse_if_faulted: bool = False) -> tuple[Frame, BoardStatus | BoardVersion]:
         with self._lock:
             self._lock_owner = threading.get_ident()
             try:
+                if self._is_closing and verb != "VENT":
+                    # Checked under the wire lock: close() marks the bank closing before its VENT
+                    # takes this lock, so nothing (a SET, a heartbeat, a query) follows the VENT.
+                    raise NotConnectedError(f"{self!r}: {verb} refused: the bank is closing")
                 if refuse_if_faulted:  # checked under the lock: the heartbeat may have just recorded one
                     self._raise_fault()
                 return self._exchange_locked(verb, args, connecting)
             finally:
                 self._lock_owner = None
 
-    def _exchange_locked(self, verb: str, args: tuple, connecting: bool) -> Frame:
-        """Send one command and return its ACK, retrying a bounded number of times."""
+    def _exchange_locked(self, verb: str, args: tuple, connecting: bool) -> tuple[Frame, BoardStatus | BoardVersion]:
+        """Send one command and return its ACK with the parsed payload (VER: the version, else
+        the status), retrying a bounded number of times.
+
+        Raises:
+            LinkLostError: no answer after every attempt, or the port failed; also a watchdog vent.
+            EStopError: the e-stop is latched.
+            BoardReplyError: an ACK whose fields cannot be read (recorded, valves vented).
+            DeviceError: the board refused the command.
+        """
         ser = self._serial
         if ser is None:
             raise NotConnectedError(f"{self!r}: {verb} before connect()")
@@ -262,9 +294,11 @@ class SerialValveBank(ValveBank):
                     raise self._record(EStopError(f"{self!r}: the board refused {verb}: its e-stop is latched and "
                                                   "every valve is vented; release it, then call clear_estop()"))
                 raise DeviceError(f"{self!r}: the board refused {verb} ({reason}); protocol mismatch?")
-            if verb != "VER":
-                self._check_status(BoardStatus.parse(reply.args), connecting)
-            return reply
+            if verb == "VER":
+                return reply, self._parse_version(reply)
+            status = self._parse_status(verb, reply)
+            self._check_status(status, connecting)
+            return reply, status
         hint = (f"check that the board is powered and flashed, the cable, the baud rate ({self._baud}) and "
                 "that no other program holds the port")
         raise self._lose_link(f"the valve board on {self._port} did not answer {verb} ({attempts} attempts, "
@@ -283,6 +317,28 @@ class SerialValveBank(ValveBank):
             if time.monotonic() >= deadline:
                 return None
             self._lines.extend(self._splitter.feed(ser.read(max(1, ser.in_waiting))))
+
+    def _parse_version(self, reply: Frame) -> BoardVersion:
+        try:
+            return BoardVersion.parse(reply.args)
+        except ProtocolError as e:
+            raise self._record(self._bad_reply("VER", reply, str(e))) from e
+
+    def _parse_status(self, verb: str, reply: Frame) -> BoardStatus:
+        try:
+            status = BoardStatus.parse(reply.args)
+        except ProtocolError as e:
+            raise self._record(self._bad_reply(verb, reply, str(e))) from e
+        if self._version is not None and len(status.setpoints_mbar) != self._version.channels:
+            raise self._record(self._bad_reply(verb, reply, f"{len(status.setpoints_mbar)} set-points for "
+                                                            f"{self._version.channels} channels"))
+        return status
+
+    def _bad_reply(self, verb: str, reply: Frame, problem: str) -> BoardReplyError:
+        received = " ".join((reply.verb, *reply.args))
+        return BoardReplyError(f"{self!r}: the board answered {verb} with {received!r}, which this host cannot "
+                               f"read ({problem}); valves vented; check that its firmware speaks protocol "
+                               f"{PROTOCOL_VERSION} (hardware/PROTOCOL.md), then reconnect")
 
     def _check_status(self, status: BoardStatus, connecting: bool) -> None:
         self._status = status
@@ -314,11 +370,18 @@ class SerialValveBank(ValveBank):
     def _record(self, fault: DeviceError) -> DeviceError:
         """Remember why set-points are refused, vent at once if the link works, and hand the error back."""
         # Raised in the caller's thread it is reported; raised in the heartbeat thread, the next call reports it.
-        self._fault, self._fault_reported = fault, threading.current_thread() is not self._heartbeat
+        # The same fault met again (every heartbeat to a board that keeps answering garbage) is not news.
+        if not self._is_standing(fault):
+            self._fault, self._fault_reported = fault, threading.current_thread() is not self._heartbeat
         if not self._link_dead and self._serial is not None:
-            with contextlib.suppress(serial.SerialException, OSError):
+            with contextlib.suppress(Exception):  # best effort: the fault is what gets reported
                 self._serial.write(encode(self._next_seq(), "VENT"))
         return fault
+
+    def _is_standing(self, fault: DeviceError) -> bool:
+        """``fault`` is the recorded fault, or says the same thing."""
+        standing = self._fault
+        return standing is fault or (type(standing) is type(fault) and str(standing) == str(fault))
 
     def _lose_link(self, message: str) -> LinkLostError:
         self._link_dead = True
@@ -350,7 +413,13 @@ class SerialValveBank(ValveBank):
         return self._seq
 
     def _keep_alive(self) -> None:
-        """Heartbeat thread: never let the link stay silent longer than ``heartbeat_s``."""
+        """Heartbeat thread: never let the link stay silent longer than ``heartbeat_s``.
+
+        Whatever goes wrong is recorded as the bank's fault (``check()`` and the caller's next
+        call raise it); the thread keeps beating so an e-stop can be cleared, and stops only
+        when the link is dead or the bank closes.
+        """
+        logged = None
         while not self._heartbeat_stop.wait(max(0.0, self._last_tx + self._heartbeat_s - time.monotonic())):
             if self._link_dead:
                 return
@@ -358,8 +427,22 @@ class SerialValveBank(ValveBank):
                 continue
             try:
                 self._exchange("HB")
-            except DeviceError as e:
-                _log.error("%s", e)  # recorded as the bank's fault; the caller's next call raises it
+            except Exception as e:  # a heartbeat thread that died would leave the link silent
+                if self._heartbeat_stop.is_set() or self._is_closing:
+                    return
+                if isinstance(e, DeviceError):
+                    fault = e  # recorded already, unless it was a refusal (NAK)
+                else:
+                    fault = DeviceError(f"{self!r}: the heartbeat failed ({type(e).__name__}: {e}); valves "
+                                        "vented; reconnect to continue")
+                    fault.__cause__ = e
+                if not self._is_standing(fault):
+                    self._record(fault)
+                if str(self._fault) != logged:
+                    logged = str(self._fault)
+                    _log.error("%s", self._fault)
+                if self._heartbeat_stop.wait(self._heartbeat_s):  # never spin on a failure before the write
+                    return
 
     def _emergency_vent(self) -> None:
         """Vent from a signal handler or at exit: a full exchange when possible, else a blind write."""

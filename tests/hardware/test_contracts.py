@@ -7,6 +7,8 @@ suite can see what the device itself drives, not just what the bank believes.
 """
 
 import contextlib
+import math
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -27,6 +29,7 @@ from tests.fakes import (
     write_side_by_side_folder,
     write_side_by_side_video,
 )
+from tests.hardware.polling import wait_until
 
 # Fixture names of every implementation under contract; extend these lists.
 CAMERA_FIXTURES = ["zed_video_camera", "zed_folder_camera", "fake_camera", "twin_camera"]
@@ -89,7 +92,8 @@ def twin_camera(twin_parts):
 @pytest.fixture
 def serial_valve_bank():
     with BoardEmulator(channels=7, max_pressure_bar=2.5) as board:
-        bank = SerialValveBank(board.port, ARM_CHANNELS, max_pressure_bar=2.5)
+        # a generous reply timeout: a loaded machine must not turn a slow reply into a lost link
+        bank = SerialValveBank(board.port, ARM_CHANNELS, max_pressure_bar=2.5, reply_timeout_s=0.5)
         yield ValvesUnderTest(bank, lambda: board.setpoints_bar, board.lsb_bar)
         bank.close()
 
@@ -214,3 +218,99 @@ def test_valves_context_manager_vents(valves, fails):
     np.testing.assert_array_equal(valves.driven_bar(), np.zeros(len(bank.channels)))
     assert all(v == 0 for v in bank.setpoints_bar.values())
 
+
+
+def test_valves_check_is_silent_while_all_is_well(valves):
+    bank = valves.bank
+    bank.check()  # before connect(): nothing recorded
+    bank.connect()
+    bank.set_pressures([1.0] * len(bank.channels))
+    bank.check()
+    bank.close()
+    bank.check()
+
+
+def test_valves_set_pressures_while_closing_is_refused_and_the_vent_stays_last(valves, monkeypatch):
+    # close() is held between its vent and its release; a set-point arriving then must not re-pressurise.
+    bank = valves.bank
+    bank.connect()
+    bank.set_pressures([1.0] * len(bank.channels))
+    vented, resume = threading.Event(), threading.Event()
+    vent = bank._vent
+
+    def vent_then_hold():
+        vent()
+        vented.set()
+        resume.wait(30)
+
+    monkeypatch.setattr(bank, "_vent", vent_then_hold)
+    closer = threading.Thread(target=bank.close, name="closer")
+    closer.start()
+    try:
+        assert vented.wait(30), "close() never vented"
+        with pytest.raises(NotConnectedError, match="closing"):
+            bank.set_pressures([2.0] * len(bank.channels))
+    finally:
+        resume.set()
+        closer.join(30)
+    assert not closer.is_alive() and not bank.is_connected
+    np.testing.assert_array_equal(valves.driven_bar(), np.zeros(len(bank.channels)))
+    with pytest.raises(NotConnectedError, match="after close"):
+        bank.set_pressures([2.0] * len(bank.channels))
+
+
+def test_valves_close_vents_after_a_set_pressures_under_way(valves, monkeypatch):
+    # A set_pressures() is inside the device call when close() starts: the vent must come after it.
+    bank = valves.bank
+    bank.connect()
+    bank.set_pressures([1.0] * len(bank.channels))
+    applying, resume = threading.Event(), threading.Event()
+    apply = bank._apply
+
+    def held_apply(setpoints_bar):
+        applying.set()
+        resume.wait(30)
+        apply(setpoints_bar)
+
+    monkeypatch.setattr(bank, "_apply", held_apply)
+    outcome = []
+
+    def set_pressures():
+        try:
+            bank.set_pressures([1.5] * len(bank.channels))
+            outcome.append(None)
+        except NotConnectedError as e:  # a device may refuse the command once closing has started
+            outcome.append(e)
+
+    setter = threading.Thread(target=set_pressures, name="setter")
+    closer = threading.Thread(target=bank.close, name="closer")
+    setter.start()
+    try:
+        assert applying.wait(30), "set_pressures() never reached the device"
+        closer.start()
+        assert wait_until(lambda: bank._is_closing), "close() never started"  # synchronisation only
+    finally:
+        resume.set()
+        setter.join(30)
+        if closer.ident is not None:
+            closer.join(30)
+    assert not setter.is_alive() and not closer.is_alive() and len(outcome) == 1
+    np.testing.assert_array_equal(valves.driven_bar(), np.zeros(len(bank.channels)))
+    assert all(v == 0 for v in bank.setpoints_bar.values())
+
+
+@pytest.mark.parametrize("clamp", [False, True])
+@pytest.mark.parametrize("value", [True, False, np.True_, math.inf, -math.inf])
+def test_valves_refuse_booleans_and_infinities_even_when_clamping(value, clamp):
+    bank = FakeValveBank(ARM_CHANNELS, max_pressure_bar=2.5, clamp=clamp)
+    with pytest.raises(ValueError, match="channel s1_b: pressure (True|False|inf|-inf) is (a boolean|not finite)"):
+        bank.validated({"s1_b": value})
+    bank.connect()
+    with pytest.raises(ValueError, match="channel s1_b"):
+        bank.set_pressures([0.5, value, 0.5, 0.5, 0.5, 0.5, 0.5])
+    assert bank.history == [] and np.all(bank.applied_bar == 0)
+
+
+def test_valves_clamping_still_clamps_finite_numbers():
+    bank = FakeValveBank(ARM_CHANNELS, max_pressure_bar=2.5, clamp=True)
+    np.testing.assert_array_equal(bank.validated({"s1_a": 2.6, "s1_b": -0.1, "s1_c": 1})[:3], [2.5, 0.0, 1.0])

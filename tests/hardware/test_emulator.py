@@ -1,13 +1,12 @@
 """The emulated board's state machine (what firmware must do), directly and over its pty."""
 
-import time
-
 import numpy as np
 import pytest
 import serial
 
 from hardware.emulator import BoardEmulator, BoardStateMachine
 from hardware.protocol import BoardStatus, BoardVersion, decode, encode
+from tests.hardware.polling import wait_until
 
 
 def ask(board, seq, verb, *args, now=0.0):
@@ -105,7 +104,7 @@ def test_emulator_serves_the_state_machine_on_a_pty():
             assert decode(link.readline()).args == ("FRAME",)
             link.write(encode(2, "STAT"))
             assert BoardStatus.parse(decode(link.readline()).args).setpoints_mbar[0] == 1500
-            time.sleep(0.4)  # no heartbeat: the watchdog vents
+            wait_until(lambda: board.watchdog_trips)  # no heartbeat: the watchdog vents
             np.testing.assert_array_equal(board.setpoints_bar, [0.0, 0.0])
             assert board.watchdog_trips == 1 and board.naks_sent == 2
         finally:
