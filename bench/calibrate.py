@@ -15,6 +15,7 @@ conventions), ready for ``[rig.camera] calibration = ...`` in the bench config.
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -73,6 +74,9 @@ def _print_comparison(estimated: StereoCalibration, reference: StereoCalibration
 
 
 def _calibrate_sim(config, args, board: BoardSpec, n_views: int, out: Path) -> int:
+    if not config.sim.twin.is_file():
+        print(f"softarm calibrate: {config.path} [sim] twin: {config.sim.twin}: twin file not found", file=sys.stderr)
+        return 2
     from twin import Twin
     from twin.checkerboard import board_poses, render_board_views
 
@@ -111,30 +115,38 @@ def _nominal_calibration(resolution: str) -> StereoCalibration:
 
 
 def _calibrate_rig(config, args, board: BoardSpec, n_views: int, out: Path) -> int:
-    from bench.factory import load_calibration
+    from bench.factory import rig_calibration, rig_camera
     from estimator.calibration import CalibrationFileError
-    from hardware.errors import EndOfStreamError
-    from hardware.zed import ZedCamera
+    from hardware.errors import DeviceError, EndOfStreamError
 
-    cam = config.rig.camera
+    cam = dataclasses.replace(config.rig.camera, loop=False)  # a looped recording would repeat its views
     try:
-        reference = load_calibration(cam.calibration, cam.resolution)
+        reference = rig_calibration(cam, config.path)
     except CalibrationFileError as e:
         print(f"note: no usable calibration to compare with ({e}); opening the camera without one")
         reference = None
-    camera = ZedCamera(cam.source, reference or _nominal_calibration(cam.resolution), cam.resolution, cam.fps)
+    try:
+        camera = rig_camera(cam, config.path, reference or _nominal_calibration(cam.resolution))
+    except (ValueError, DeviceError) as e:  # both name the config file and [rig.camera] source (or the key)
+        print(f"softarm calibrate: {e}", file=sys.stderr)
+        print("softarm calibrate: no camera, nothing calibrated; check the camera or point [rig.camera] source at "
+              "a side-by-side recording", file=sys.stderr)
+        return 1
     kept: list[tuple[np.ndarray, np.ndarray]] = []
     seen = 0
+    size = camera.calibration.image_size
     print(f"move the board ({board.inner_cols}x{board.inner_rows} inner corners, {1000 * board.square_m:g} mm "
           f"squares) slowly through the whole view, tilted and at several distances; Ctrl-C to stop early")
     try:
-        camera.connect()
-        size = camera.calibration.image_size
         while len(kept) < n_views:
             try:
                 frame = camera.grab()
             except EndOfStreamError:
                 break
+            except DeviceError as e:
+                print(f"\nsoftarm calibrate: {config.path} [rig.camera] source: {e}; stopped after {seen} frames "
+                      f"({len(kept)} views), nothing calibrated", file=sys.stderr)
+                return 1
             seen += 1
             found = detect_pair(frame.left, frame.right, board)
             if found is None:
@@ -169,7 +181,13 @@ def calibrate_command(args) -> int:
     except ConfigError as e:
         print(f"softarm calibrate: {e}", file=sys.stderr)
         return 2
-    n_views = getattr(args, "views", None) or DEFAULT_VIEWS[config.backend]
+    n_views = getattr(args, "views", None)
+    if n_views is None:
+        n_views = DEFAULT_VIEWS[config.backend]
+    elif n_views <= 0:
+        print(f"softarm calibrate: --views {n_views}: expected a positive number of board views (at least 6; "
+              f"default {DEFAULT_VIEWS[config.backend]})", file=sys.stderr)
+        return 2
     if n_views < 6:
         print(f"softarm calibrate: --views {n_views}: at least 6 views are needed", file=sys.stderr)
         return 2

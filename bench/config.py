@@ -8,7 +8,7 @@ section, write its dataclass and add one field to ``BenchConfig``::
 
     @dataclass(frozen=True)
     class RecordingConfig:
-        out: Path = Path("../runs")      # relative paths resolve against the config's folder
+        out: Path = Path("../runs")      # written in a file: against its folder; a default: against models/
         lossless: bool = True
 
     # in BenchConfig:
@@ -33,7 +33,11 @@ from hardware.protocol import DEFAULT_BAUD
 from hardware.zed import ZED_FPS, resolution_name
 
 REPO = Path(__file__).resolve().parents[1]
-DEFAULT_CONFIG = REPO / "models" / "bench.toml"
+MODELS = REPO / "models"
+DEFAULT_CONFIG = MODELS / "bench.toml"
+# Relative paths of the dataclass defaults (``twin.toml``, ``../runs``) are those of
+# models/bench.toml, so a default resolves against models/ whichever file left the key out.
+DEFAULTS_DIR = MODELS
 BACKENDS = ("sim", "rig")
 CALIBRATION_SUFFIXES = (".conf", ".toml")
 EXPERIMENT_KINDS = ("ramp", "step", "sweep", "random")
@@ -53,7 +57,8 @@ class SimConfig:
     """``[sim]``: the digital twin.
 
     Attributes:
-        twin: the twin's parameter file (resolved against the config's folder).
+        twin: the twin's parameter file (written in the file: against its folder; left out:
+            ``models/twin.toml``).
     """
 
     twin: Path = Path("twin.toml")
@@ -106,6 +111,9 @@ class ValvesConfig:
         max_pressure_bar: host-side limit on every channel (the board enforces its own too).
         baud: serial rate.
         clamp: clamp out-of-range set-points with a warning instead of raising.
+        reply_timeout_s: how long to wait for each reply before a retry (two retries, then the
+            link is lost); a board answers in well under a millisecond, so the default leaves
+            room for a busy host, not for a slow board.
     """
 
     port: str
@@ -113,6 +121,7 @@ class ValvesConfig:
     max_pressure_bar: float = 2.5
     baud: int = DEFAULT_BAUD
     clamp: bool = False
+    reply_timeout_s: float = 0.05
 
     def __post_init__(self) -> None:
         if not self.port.strip():
@@ -121,6 +130,9 @@ class ValvesConfig:
             raise ValueError(f"max_pressure_bar: expected a positive pressure, got {self.max_pressure_bar!r}")
         if self.baud <= 0:
             raise ValueError(f"baud: expected a positive rate, got {self.baud}")
+        if not (math.isfinite(self.reply_timeout_s) and 0 < self.reply_timeout_s <= 1.0):
+            raise ValueError(f"reply_timeout_s: expected 0 < seconds <= 1 (the board's watchdog vents after "
+                             f"0.25 s of silence), got {self.reply_timeout_s!r}")
         if not self.channels:
             raise ValueError("channels: expected at least one 'name = board channel' entry")
         for name, index in self.channels.items():
@@ -238,7 +250,8 @@ class RecordingConfig:
     """``[recording]``: the run folder.
 
     Attributes:
-        root: where ``softarm run`` creates its time-stamped folder (``--out`` overrides).
+        root: where ``softarm run`` creates its time-stamped folder (``--out`` overrides; left
+            out: ``runs/`` of the repository).
         lossless_frames: raw stereo frames as PNG (lossless: the run can be replayed exactly);
             false writes JPEG (a fraction of the size; enough for the report, not for replay).
         png_compression: zlib level 0-9 of the PNGs (1: fast; the sensor noise barely compresses).
@@ -331,7 +344,11 @@ class BenchConfig:
 
 
 def load_bench_config(path: str | Path | None = None, *, backend: str | None = None) -> BenchConfig:
-    """Read a bench config; relative paths inside it resolve against its folder.
+    """Read a bench config.
+
+    Relative paths written in the file resolve against the file's folder; keys and sections the
+    file leaves out take the defaults of ``models/bench.toml``, whose paths resolve against
+    ``models/`` (a file elsewhere that omits ``[sim]`` still gets ``models/twin.toml``).
 
     Args:
         path: the TOML file; None for ``models/bench.toml``.
@@ -363,11 +380,12 @@ _T = typing.TypeVar("_T")
 
 
 def build_section(cls: type[_T], table: Any, path: Path, section: str = "", *,
-                  context: Mapping[str, Any] | None = None) -> _T:
+                  context: Mapping[str, Any] | None = None, defaults_dir: Path = DEFAULTS_DIR) -> _T:
     """Build the frozen dataclass ``cls`` from a TOML table, checking every key against its fields.
 
     Field types drive the conversion: ``bool``, ``int``, ``float`` (ints accepted), ``str``,
-    ``Path`` (relative paths resolve against ``path``'s folder, defaults included),
+    ``Path`` (relative paths written in the table resolve against ``path``'s folder, those of
+    the dataclass defaults against ``defaults_dir``),
     ``Literal[...]``, unions such as ``int | Path`` or ``X | None``, ``tuple[X, ...]``,
     ``Mapping[str, X]`` and nested dataclasses (sub-tables, built recursively; a missing
     sub-table takes the field's default, or is built from an empty table when there is none). Fields with
@@ -379,6 +397,8 @@ def build_section(cls: type[_T], table: Any, path: Path, section: str = "", *,
         path: the config file (for messages and relative paths).
         section: dotted name of the table ("" for the top level, "rig.camera").
         context: values of the fields that do not come from the file.
+        defaults_dir: the folder the defaults' relative paths are relative to (``models/``, where
+            the default config lives).
 
     Raises:
         ConfigError: an unknown key, a missing required key, a value of the wrong type, or a
@@ -398,13 +418,14 @@ def build_section(cls: type[_T], table: Any, path: Path, section: str = "", *,
     for name, f in keys.items():
         hint = hints[name]
         if name in table:
-            values[name] = _convert(table[name], hint, where, name)
+            values[name] = _convert(table[name], hint, where, name, defaults_dir)
         elif f.default is not dataclasses.MISSING:
-            values[name] = _resolve_default(f.default, path)
+            values[name] = _resolve_default(f.default, defaults_dir)
         elif f.default_factory is not dataclasses.MISSING:
-            values[name] = _resolve_default(f.default_factory(), path)
+            values[name] = _resolve_default(f.default_factory(), defaults_dir)
         elif dataclasses.is_dataclass(hint):
-            values[name] = build_section(hint, {}, path, where.child(name))  # names its missing keys
+            # names its missing keys
+            values[name] = build_section(hint, {}, path, where.child(name), defaults_dir=defaults_dir)
         else:
             raise where.error(None, f"missing key {where.name(name)}")
     try:
@@ -433,7 +454,7 @@ def _with_section(message: str, where: _Where) -> str:
     return f"[{where.section}] {message}" if where.section and not message.startswith("[") else message
 
 
-def _convert(value: Any, hint: Any, where: _Where, key: str) -> Any:
+def _convert(value: Any, hint: Any, where: _Where, key: str, defaults_dir: Path) -> Any:
     origin, args = typing.get_origin(hint), typing.get_args(hint)
     if origin in (typing.Union, types.UnionType):
         if value is None and type(None) in args:
@@ -441,22 +462,22 @@ def _convert(value: Any, hint: Any, where: _Where, key: str) -> Any:
         options = [a for a in args if a is not type(None)]
         for option in options:  # the first option of the value's TOML type; its own errors stand
             if _fits(value, option):
-                return _convert(value, option, where, key)
+                return _convert(value, option, where, key, defaults_dir)
         raise where.error(key, f"expected {' or '.join(map(_expected, options))}, got {_describe(value)}")
     if not _fits(value, hint) or (hint is Path and not value):
         raise where.error(key, f"expected {_expected(hint)}, got {_describe(value)}")
     if dataclasses.is_dataclass(hint):
-        return build_section(hint, value, where.path, where.child(key))
+        return build_section(hint, value, where.path, where.child(key), defaults_dir=defaults_dir)
     if origin is tuple:
         item = args[0] if args else Any
-        return tuple(_convert(v, item, where, f"{key}[{i}]") for i, v in enumerate(value))
+        return tuple(_convert(v, item, where, f"{key}[{i}]", defaults_dir) for i, v in enumerate(value))
     if _is_mapping(hint):
         item = args[1] if len(args) == 2 else Any
-        return {str(k): _convert(v, item, where, f"{key}.{k}") for k, v in value.items()}
+        return {str(k): _convert(v, item, where, f"{key}.{k}", defaults_dir) for k, v in value.items()}
     if hint is float:
         return float(value)
     if hint is Path:
-        return _resolve(Path(value), where.path)
+        return _resolve(Path(value), where.path.resolve().parent)
     return value
 
 
@@ -493,25 +514,25 @@ def _expected(hint: Any) -> str:
             Path: "a path string"}.get(hint, str(hint))
 
 
-def _resolve_default(value: Any, config_path: Path) -> Any:
-    """A field's default with its relative paths (nested sections' too) resolved like the file's."""
+def _resolve_default(value: Any, defaults_dir: Path) -> Any:
+    """A field's default with its relative paths (nested sections' too) resolved against ``defaults_dir``."""
     if isinstance(value, Path):
-        return _resolve(value, config_path)
+        return _resolve(value, defaults_dir)
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         changes = {}
         for f in dataclasses.fields(value):
             if f.init and f.metadata.get("from_file", True):
                 old = getattr(value, f.name)
-                new = _resolve_default(old, config_path)
+                new = _resolve_default(old, defaults_dir)
                 if new is not old:
                     changes[f.name] = new
         return dataclasses.replace(value, **changes) if changes else value
     return value
 
 
-def _resolve(value: Path, config_path: Path) -> Path:
+def _resolve(value: Path, folder: Path) -> Path:
     value = value.expanduser()
-    return value if value.is_absolute() else (config_path.resolve().parent / value)
+    return value if value.is_absolute() else (Path(folder).resolve() / value)
 
 
 def _describe(value: Any) -> str:

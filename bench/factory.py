@@ -3,7 +3,9 @@
 Each branch imports its own drivers, so a rig run never loads MuJoCo, pyrender or the twin,
 and a simulated run never imports pyserial or opens a port. Everything that can fail without
 moving anything (the calibration file, the camera, the board's answer) is checked before the
-valves are connected; a failure closes what was already opened.
+valves are connected; a failure closes what was already opened. A missing or unusable file or
+device is reported with the config file and the key that named it, e.g.
+``models/bench.toml [rig.camera] calibration: models/SN00000.conf: calibration file not found``.
 """
 
 from __future__ import annotations
@@ -12,8 +14,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bench.config import BenchConfig, RigConfig, SimConfig
-from estimator import StereoCalibration
+from bench.config import BenchConfig, CameraConfig, ConfigError, RigConfig, SimConfig
+from estimator import CalibrationFileError, StereoCalibration
+from hardware.errors import DeviceError
 from hardware.interfaces import StereoCamera, ValveBank
 
 
@@ -54,14 +57,16 @@ def make_devices(config: BenchConfig) -> Devices:
     """Open the devices of ``config.backend`` ("sim" or "rig").
 
     Raises:
+        ConfigError: the twin's file (``[sim] twin``) does not exist.
         CalibrationFileError: the rig's calibration file is missing or malformed.
         DeviceError: a device cannot be opened, or does not match its configuration.
-        ValueError: the backend is not one of "sim", "rig".
+        ValueError: the backend is not one of "sim", "rig", or a ``[rig.camera]`` value the
+            camera refuses (a source that does not exist, ...).
     """
     if config.backend == "rig":
-        return _make_rig(config.rig)
+        return _make_rig(config.rig, config.path)
     if config.backend == "sim":
-        return _make_sim(config.sim)
+        return _make_sim(config.sim, config.path)
     raise ValueError(f"backend: expected 'sim' or 'rig', got {config.backend!r}")
 
 
@@ -74,16 +79,48 @@ def load_calibration(path: Path, resolution: str) -> StereoCalibration:
     return StereoCalibration.load(path)
 
 
-def _make_rig(rig: RigConfig) -> Devices:
-    from hardware.valves import SerialValveBank
+def rig_calibration(cam: CameraConfig, config_path: Path) -> StereoCalibration:
+    """The calibration ``[rig.camera] calibration`` names.
+
+    Raises:
+        CalibrationFileError: missing or malformed; the message starts with the config file and the key.
+    """
+    try:
+        return load_calibration(cam.calibration, cam.resolution)
+    except CalibrationFileError as e:
+        raise CalibrationFileError(f"{config_path} [rig.camera] calibration: {e}") from e
+
+
+def rig_camera(cam: CameraConfig, config_path: Path, calibration: StereoCalibration):
+    """The ``hardware.zed.ZedCamera`` of ``[rig.camera]``, connected.
+
+    Raises:
+        ValueError: the camera refuses a ``[rig.camera]`` value (a source that does not exist, ...).
+        DeviceError: the source cannot be opened or does not fit the calibration.
+        Both messages start with the config file and ``[rig.camera]`` and the key.
+    """
     from hardware.zed import ZedCamera
 
+    try:
+        camera = ZedCamera(cam.source, calibration, cam.resolution, cam.fps, loop=cam.loop)
+    except ValueError as e:  # the driver's messages start with the key ("source: ...", "fps: ...")
+        raise ValueError(f"{config_path} [rig.camera] {e}") from e
+    try:
+        camera.connect()
+    except DeviceError as e:
+        raise DeviceError(f"{config_path} [rig.camera] source: {e}") from e
+    return camera
+
+
+def _make_rig(rig: RigConfig, config_path: Path) -> Devices:
+    from hardware.valves import SerialValveBank
+
     cam = rig.camera
-    calibration = load_calibration(cam.calibration, cam.resolution)
-    camera = ZedCamera(cam.source, calibration, cam.resolution, cam.fps, loop=cam.loop)
+    calibration = rig_calibration(cam, config_path)
     valves = SerialValveBank(rig.valves.port, dict(rig.valves.channels), rig.valves.max_pressure_bar,
-                             baud=rig.valves.baud, clamp=rig.valves.clamp)
-    camera.connect()
+                             baud=rig.valves.baud, clamp=rig.valves.clamp,
+                             reply_timeout_s=rig.valves.reply_timeout_s)
+    camera = rig_camera(cam, config_path, calibration)
     try:
         valves.connect()
     except BaseException:
@@ -92,7 +129,9 @@ def _make_rig(rig: RigConfig) -> Devices:
     return Devices(camera, valves, None)
 
 
-def _make_sim(sim: SimConfig) -> Devices:
+def _make_sim(sim: SimConfig, config_path: Path) -> Devices:
+    if not Path(sim.twin).is_file():
+        raise ConfigError(f"{config_path} [sim] twin: {sim.twin}: twin file not found")
     from twin import Twin
 
     twin = Twin.from_config(sim.twin)

@@ -12,11 +12,13 @@ Layout (every file readable by a person; ``load_run`` reads it back)::
       summary.json       written at the end (a killed run has none: ``load_run`` recomputes it)
       report/            written by ``softarm report``
 
-A frame's files are written first (each to a temporary name, then renamed), its line in
-``frames.jsonl`` last, by one background thread; ``RunWriter.submit`` waits for the previous
-frame to be on disk before handing over the next, so at any moment at most one frame is in
-flight: a SIGKILL loses at most the frame being written, and every line in ``frames.jsonl``
-has its images. A line cut short by the kill is skipped by the loader.
+``config.json`` and ``calibration.toml`` are written before ``frames.jsonl`` is created (pass
+them to ``RunWriter``), so every folder holding a ``frames.jsonl`` can be loaded, even one killed
+before its first frame. A frame's files are written first (each to a temporary name, then
+renamed), its line in ``frames.jsonl`` last, by one background thread; ``RunWriter.submit``
+waits for the previous frame to be on disk before handing over the next, so at any moment at
+most one frame is in flight: a SIGKILL loses at most the frame being written, and every line in
+``frames.jsonl`` has its images. A line cut short by the kill is skipped by the loader.
 """
 
 from __future__ import annotations
@@ -95,17 +97,28 @@ class RunWriter:
     Args:
         folder: the run folder; created, and it must not already hold a run.
         recording: image format options.
+        config: the resolved configuration, written to ``config.json`` before ``frames.jsonl``
+            exists (None: call ``write_config`` later).
+        source: the config file the run was started with, copied beside it.
+        calibration: written to ``calibration.toml``, also before ``frames.jsonl``.
 
     Raises:
         RunFolderError: the folder already holds a run.
+        OSError: the folder or its first files cannot be written.
     """
 
-    def __init__(self, folder: Path, recording: RecordingConfig) -> None:
+    def __init__(self, folder: Path, recording: RecordingConfig, *, config: Mapping[str, Any] | None = None,
+                 source: Path | None = None, calibration: StereoCalibration | None = None) -> None:
         self.folder = Path(folder)
-        if (self.folder / FRAMES_FILE).exists():
-            raise RunFolderError(f"{self.folder} already holds a run (frames.jsonl); choose another --out")
+        for name in (FRAMES_FILE, CONFIG_FILE):
+            if (self.folder / name).exists():
+                raise RunFolderError(f"{self.folder} already holds a run ({name}); choose another --out")
         (self.folder / FRAMES_DIR).mkdir(parents=True, exist_ok=True)
         self.recording = recording
+        if calibration is not None:
+            self.write_calibration(calibration)
+        if config is not None:
+            self.write_config(config, source)
         self._lines = open(self.folder / FRAMES_FILE, "a", encoding="utf-8")  # noqa: SIM115 (closed in close())
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="run-writer")
         self._pending: Future | None = None

@@ -9,10 +9,17 @@ estimates; there is no ground truth, so it scores what it can (validity, fps, an
 depth source is configured in ``[rig.depth]``) and says so.
 
 Safety and bookkeeping: anything that can fail without moving (config, calibration, devices,
-channels and pressures of the schedule) is checked before the first set-point; SIGINT (Ctrl-C)
-and SIGTERM stop the loop, vent the valves, close the devices and finish the files; a failed
-estimate is recorded as an invalid frame and the run goes on; a twin instability
-(``SimulationError``) or a device fault stops the run cleanly, keeping the frames so far.
+channels and pressures of the schedule) is checked before the first set-point, and the run
+folder's ``config.json`` and calibration are written before it too, so any killed run loads;
+SIGINT (Ctrl-C) and SIGTERM stop the loop, vent the valves, close the devices and finish the
+files (a signal before the first set-point sends none); a failed estimate is recorded as an
+invalid frame and the run goes on; a twin instability (``SimulationError``), a device fault,
+including one the valve bank records in the background (``ValveBank.check()``, called every
+frame: a lost link, an e-stop), or a failed write stops the run cleanly, keeping the frames so
+far, and ``summary.json`` says why. The pressure thread is stopped and joined before the
+devices are closed, so the vent is the last command the valves receive. The report is written
+after the devices and files are closed and the signal handlers restored: Ctrl-C then just
+stops the report.
 """
 
 from __future__ import annotations
@@ -47,6 +54,10 @@ EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 _SIGNAL_EXIT = {signal.SIGINT: 130, signal.SIGTERM: 143}
 
 
+class RunError(RuntimeError):
+    """A run failed after the valves had moved: the devices were closed and the frames so far kept."""
+
+
 @dataclass
 class RunOptions:
     """What the command line adds to the config.
@@ -77,9 +88,12 @@ class RunOutcome:
     Attributes:
         folder: the run folder (None when the run failed before anything moved).
         summary: ``summary.json``'s contents.
-        stopped: None when the schedule ran to its end; else why it stopped.
-        exit_code: 0 done, 1 stopped by a fault, 130/143 stopped by SIGINT/SIGTERM.
+        stopped: None when the schedule ran to its end; else why it stopped (and what failed
+            while closing the devices, if anything did).
+        exit_code: 0 done, 1 stopped by a fault (or the report failed), 130/143 stopped by
+            SIGINT/SIGTERM (during the report too).
         timings_s: wall-clock seconds per part of the loop (physics, render, estimate, ...).
+        frames: frames recorded.
     """
 
     folder: Path | None
@@ -87,20 +101,51 @@ class RunOutcome:
     stopped: str | None
     exit_code: int
     timings_s: dict[str, float]
+    frames: int = 0
 
 
 class _Stop:
-    """Set by SIGINT/SIGTERM (or a device thread); the loop checks it between steps."""
+    """Set by SIGINT/SIGTERM (or a device thread); the loop checks it between steps.
+
+    Every set-point of a run goes through ``command``, which checks the stop flag (and whether
+    the devices are being closed) under ``lock`` right before sending; the devices are closed
+    under the same lock once ``closed`` is set, so no set-point can follow the final vent.
+    ``request`` does not take the lock: it runs in signal handlers, which interrupt the main
+    thread wherever it is (inside the valve bank, too), where waiting for a lock could deadlock;
+    a set-point already past its check when the signal lands is in flight, and the vent follows it.
+    """
 
     def __init__(self) -> None:
         self.event = threading.Event()
+        self.lock = threading.Lock()
         self.reason: str | None = None
         self.signum: int | None = None
+        self.moved = False  # a set-point was sent (or started): from then on "nothing was moved" is false
+        self.closed = False  # the devices are being closed: no more set-points
 
     def request(self, reason: str, signum: int | None = None) -> None:
         if not self.event.is_set():
             self.reason, self.signum = reason, signum
             self.event.set()
+
+    def command(self, valves, pressures, unless: threading.Event | None = None) -> bool:
+        """Send set-points unless a stop was requested, the devices are closing, or ``unless`` is set.
+
+        Returns:
+            True when the set-points were sent.
+        """
+        with self.lock:
+            if self.event.is_set() or self.closed or (unless is not None and unless.is_set()):
+                return False
+            self.moved = True
+            valves.set_pressures(pressures)
+            return True
+
+    def close_devices(self, devices) -> None:
+        """Close (vent first) the devices; no set-point of this run can follow."""
+        with self.lock:
+            self.closed = True
+            devices.close()
 
     def __bool__(self) -> bool:
         return self.event.is_set()
@@ -178,6 +223,9 @@ def run_command(args) -> int:
                          report=not getattr(args, "no_report", False), argv=list(sys.argv))
     try:
         outcome = run_experiment(config, options)
+    except RunError as e:  # after the valves moved: never "nothing was moved"
+        print(f"softarm run: {e}", file=sys.stderr)
+        return EXIT_FAILED
     except (CalibrationFileError, DeviceError, OSError) as e:  # a device or its calibration (a ValueError too)
         print(f"softarm run: {e}", file=sys.stderr)
         print("softarm run: nothing was moved", file=sys.stderr)
@@ -208,9 +256,15 @@ def estimator_configs(config: BenchConfig, options: RunOptions) -> dict[str, Est
 def run_experiment(config: BenchConfig, options: RunOptions) -> RunOutcome:
     """Run the configured experiment end to end: devices, schedule, estimates, scores, files, report.
 
-    Raises (before anything moves; nothing is recorded then):
-        ValueError: bad options, or a schedule the valves cannot take (unknown channel, too high).
-        CalibrationFileError, DeviceError, OSError: a device or its calibration cannot be opened.
+    A fault during the run (a device, a failed write, the twin) does not raise: it stops the run
+    cleanly and the outcome says why (``stopped``, ``exit_code``).
+
+    Raises:
+        ValueError: bad options, or a schedule the valves cannot take (unknown channel, too high);
+            before anything moves, and nothing is recorded.
+        CalibrationFileError, DeviceError, OSError: a device or its calibration cannot be opened, or
+            the run folder cannot be written; before anything moves.
+        RunError: an error escaped the run after the valves had moved (the devices were closed).
     """
     schedule = make_schedule(config.experiment, frames=options.frames)
     est_configs = estimator_configs(config, options)
@@ -226,11 +280,50 @@ def run_experiment(config: BenchConfig, options: RunOptions) -> RunOutcome:
             _check_schedule(schedule, devices.valves)
             depth_source = _rig_depth_source(config) if config.backend == "rig" else None
             folder = options.out if options.out is not None else new_run_folder(config.recording.root)
-            writer = RunWriter(folder, config.recording)
-        except BaseException:
-            devices.close()
+            # config.json and the calibration before frames.jsonl: a run killed at any point loads
+            writer = RunWriter(folder, config.recording, source=config.path, calibration=devices.camera.calibration,
+                               config=_resolved_config(config, options, schedule, est_configs, devices))
+        except BaseException as e:
+            try:
+                devices.close()
+            except Exception as close_error:  # noqa: BLE001 - the first error is the one to report
+                e.add_note(f"closing the devices also failed: {type(close_error).__name__}: {close_error}")
             raise
-        return _run_loop(config, options, schedule, est_configs, devices, writer, depth_source, stop)
+        try:
+            outcome = _run_loop(config, options, schedule, est_configs, devices, writer, depth_source, stop)
+        except (CalibrationFileError, DeviceError, OSError, ValueError) as e:
+            if not stop.moved:
+                raise
+            raise RunError(f"{_describe_error(e)}; the devices were closed; the frames so far are in "
+                           f"{writer.folder}") from e
+    # Devices and files are closed and SIGINT/SIGTERM act as usual again: Ctrl-C now only stops the report.
+    _print_summary(outcome.summary, writer.folder)
+    if stop.signum is not None and outcome.exit_code not in _SIGNAL_EXIT.values():
+        outcome.exit_code = _SIGNAL_EXIT[stop.signum]  # the signal came after the last frame
+    if outcome.exit_code in _SIGNAL_EXIT.values():
+        print(f"report skipped after the interruption; write it with: softarm report {writer.folder}")
+    elif options.report and config.report.enabled and outcome.frames:
+        outcome.exit_code = _write_report(writer.folder, options, outcome)
+    return outcome
+
+
+def _write_report(folder: Path, options: RunOptions, outcome: RunOutcome) -> int:
+    """Write the report of the finished run folder; returns the run's exit code, or the report's failure."""
+    from bench.report import write_report
+
+    start = time.perf_counter()
+    try:
+        write_report(folder, progress=options.progress)
+    except KeyboardInterrupt:
+        print(f"\nsoftarm run: report interrupted; the run folder is complete; write the report with: "
+              f"softarm report {folder}", file=sys.stderr)
+        return _SIGNAL_EXIT[signal.SIGINT]
+    except Exception as e:  # noqa: BLE001 - the run is recorded; a failing report must not hide that
+        print(f"softarm run: the report failed ({type(e).__name__}: {e}); the run folder is complete; "
+              f"try again with: softarm report {folder}", file=sys.stderr)
+        return outcome.exit_code or EXIT_FAILED
+    outcome.timings_s["report"] = time.perf_counter() - start
+    return outcome.exit_code
 
 
 def _check_schedule(schedule: Schedule, valves) -> None:
@@ -245,63 +338,107 @@ def _check_schedule(schedule: Schedule, valves) -> None:
 
 
 def _run_loop(config, options, schedule, est_configs, devices, writer, depth_source, stop) -> RunOutcome:
+    """Warm up, run the schedule, and always: stop the pressure thread, close the devices, finish the files.
+
+    The devices are closed here, whatever happens; errors that end a run cleanly (``_stop_errors``)
+    and errors while closing are recorded in ``stopped``, not raised.
+    """
     calibration = devices.camera.calibration
-    estimators = {key: CenterlineEstimator(calibration, cfg) for key, cfg in est_configs.items()}
-    for estimator in estimators.values():  # compile before the clock starts (a rig run is real time)
-        estimator.warm_up()
     sim = devices.twin is not None
-    writer.write_calibration(calibration)
-    writer.write_config(_resolved_config(config, options, schedule, est_configs, devices), config.path)
     records: list[dict] = []
     totals = {k: 0.0 for k in ("physics", "render", "truth", "estimate", "score", "record_wait")}
     stopped: str | None = None
     exit_code = EXIT_OK
     stats = {"dropped": 0}
-    progress = _progress(schedule.frames, options.progress, writer.folder)
+    progress = None
+    close_failed = False
+    announced: str | None = None  # the stop reason already printed
     loop_start = time.perf_counter()
     try:
+        estimators = {key: CenterlineEstimator(calibration, cfg) for key, cfg in est_configs.items()}
+        for estimator in estimators.values():  # compile before the clock starts (a rig run is real time)
+            if stop:
+                break
+            estimator.warm_up()
+        progress = _progress(schedule.frames, options.progress, writer.folder)
+        loop_start = time.perf_counter()
         captures = (_sim_captures(devices, schedule, config.experiment, stop) if sim
                     else _rig_captures(devices, schedule, config.experiment, stop, depth_source, stats))
-        for capture in captures:
-            record = _process(capture, estimators, calibration, totals)
-            start = time.perf_counter()
-            frame = capture.frame
-            # copies: the writer encodes them while the next frame is captured (a driver may reuse its buffers)
-            writer.submit(record, frame.left.copy(), frame.right.copy(),
-                          capture.depth_units if (sim and config.recording.depth) else None)
-            totals["record_wait"] += time.perf_counter() - start
-            for part in ("physics", "render", "truth"):
-                totals[part] += capture.timings_ms.get(part, 0.0) / 1e3
-            records.append(record)
-            _update_progress(progress, record)
+        try:
+            for capture in captures:
+                # A fault the valves recorded in the background (a lost link, the board's watchdog
+                # vent, an e-stop) stops the run here, before a frame taken after it is recorded.
+                _check_valves(devices.valves)
+                record = _process(capture, estimators, calibration, totals)
+                start = time.perf_counter()
+                frame = capture.frame
+                # copies: the writer encodes them while the next frame is captured (a driver may reuse its buffers)
+                writer.submit(record, frame.left.copy(), frame.right.copy(),
+                              capture.depth_units if (sim and config.recording.depth) else None)
+                totals["record_wait"] += time.perf_counter() - start
+                for part in ("physics", "render", "truth"):
+                    totals[part] += capture.timings_ms.get(part, 0.0) / 1e3
+                records.append(record)
+                _update_progress(progress, record)
+        finally:
+            captures.close()  # stops and joins the pressure thread, on every path, before the devices close
         if stop:
             stopped = stop.reason
             exit_code = _SIGNAL_EXIT.get(stop.signum, EXIT_FAILED)
     except _stop_errors() as e:
         stopped = f"{_describe_error(e)}"
         exit_code = EXIT_FAILED
+        if progress is not None:
+            progress.close()
         print(f"\nsoftarm run: stopped: {stopped}; the {len(records)} frames so far are kept", file=sys.stderr)
+        announced = stopped
+    except BaseException as e:
+        stopped = f"unexpected error: {type(e).__name__}: {e}"
+        raise
     finally:
         wall_s = time.perf_counter() - loop_start
         if progress is not None:
             progress.close()
         try:
-            devices.close()  # vents first
-        finally:
-            summary = _finish(writer, records, config, options, schedule, stopped, wall_s, totals, stats)
-    if stopped is not None and exit_code in _SIGNAL_EXIT.values():
-        print(f"softarm run: {stopped}; valves vented, devices closed, {len(records)} frames kept in {writer.folder}",
-              file=sys.stderr)
-    _print_summary(summary, writer.folder)
-    if options.report and config.report.enabled and exit_code not in _SIGNAL_EXIT.values() and records:
-        from bench.report import write_report
+            stop.close_devices(devices)  # vents first
+        except Exception as e:  # noqa: BLE001 - whatever failed, the files are finished and the run says so
+            failure = f"closing the devices failed: {_describe_error(e)}"
+            stopped = f"{stopped}; {failure}" if stopped else failure
+            close_failed = True
+            exit_code = exit_code or EXIT_FAILED
+            print(f"softarm run: {failure}", file=sys.stderr)
+        summary = _finish(writer, records, config, options, schedule, stopped, wall_s, totals, stats)
+    stopped = summary["stopped"]  # a failed last write is added there
+    if stopped is not None and exit_code == EXIT_OK:
+        exit_code = EXIT_FAILED
+    if stopped is not None:
+        if not stop.moved:
+            what = "nothing was moved"
+        elif close_failed:
+            what = "check that the valves are vented"
+        elif exit_code in _SIGNAL_EXIT.values():
+            what = "valves vented, devices closed"
+        else:
+            what = "devices closed"
+        reason = "" if stopped == announced else f"{stopped}; "
+        print(f"softarm run: {reason}{what}; {len(records)} frames kept in {writer.folder}", file=sys.stderr)
+    return RunOutcome(writer.folder, summary, stopped, exit_code, totals, frames=len(records))
 
-        report_start = time.perf_counter()
-        write_report(writer.folder, progress=options.progress)
-        totals["report"] = time.perf_counter() - report_start
-    elif exit_code in _SIGNAL_EXIT.values():
-        print(f"report skipped after the interruption; write it with: softarm report {writer.folder}")
-    return RunOutcome(writer.folder, summary, stopped, exit_code, totals)
+
+def _check_valves(valves) -> None:
+    """Raise, as a valve fault, what the valve bank recorded in the background since the last frame."""
+    try:
+        valves.check()
+    except DeviceError as e:
+        raise _ValveFaultError(e) from e
+
+
+class _ValveFaultError(DeviceError):
+    """A fault of the valve bank that stopped the run; the message says so and names the original error."""
+
+    def __init__(self, error: BaseException) -> None:
+        super().__init__(f"valve fault: {type(error).__name__}: {error}")
+        self.error = error
 
 
 def _stop_errors() -> tuple[type[BaseException], ...]:
@@ -317,6 +454,8 @@ def _stop_errors() -> tuple[type[BaseException], ...]:
 def _describe_error(e: BaseException) -> str:
     if isinstance(e, EndOfStreamError):
         return f"the camera's recording ended ({e})"
+    if isinstance(e, _ValveFaultError):
+        return str(e)
     kind = "twin instability" if type(e).__name__ == "SimulationError" else type(e).__name__
     return f"{kind}: {e}"
 
@@ -448,7 +587,8 @@ def _sim_captures(devices, schedule: Schedule, experiment, stop: _Stop) -> Itera
         finally:
             phys["s"] += time.perf_counter() - start
 
-    valves.set_pressures(schedule.command(0))
+    if not stop.command(valves, schedule.command(0)):  # a signal during opening or warm-up: nothing moves
+        return
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotSettledWarning)  # not at rest is still a true shape; said below
         if experiment.settle and not timed_physics(twin.settle):
@@ -470,7 +610,8 @@ def _sim_captures(devices, schedule: Schedule, experiment, stop: _Stop) -> Itera
         phys["s"] = 0.0
         while next_change < len(changes) and changes[next_change] <= t_capture + 1e-9:
             advance_to(changes[next_change])
-            valves.set_pressures(schedule.command(next_change))
+            if not stop.command(valves, schedule.command(next_change)):
+                return
             if experiment.quasi_static:
                 before = twin.time_s
                 with warnings.catch_warnings():
@@ -501,8 +642,13 @@ def _sim_captures(devices, schedule: Schedule, experiment, stop: _Stop) -> Itera
 class _PressureDriver(threading.Thread):
     """Commands the schedule's pressure steps on time (monotonic clock) while the main loop estimates.
 
+    Each step goes through ``_Stop.command``: the stop flag and ``finish()`` are checked under the
+    stop's lock right before the set-point is sent, and ``finish()`` waits for that lock, so once
+    it returns no set-point of this thread is under way or can follow, even if the join timed out.
     A device error is kept in ``error`` and stops the run (the main loop re-raises it).
     """
+
+    JOIN_TIMEOUT_S = 2.0  # finish() stops waiting for the thread after this (it sends nothing more anyway)
 
     def __init__(self, valves, schedule: Schedule, t0: float, stop: _Stop) -> None:
         super().__init__(name="pressure-driver", daemon=True)
@@ -520,19 +666,21 @@ class _PressureDriver(threading.Thread):
                     if remaining <= 0:
                         break
                     self._finished.wait(min(remaining, 0.05))
-                if self._finished.is_set() or self._stop_flag:
-                    return
                 command = self._schedule.command(k)
-                self._valves.set_pressures(command)
+                if not self._stop_flag.command(self._valves, command, unless=self._finished):
+                    return
                 self.sent.append((time.monotonic() - self._t0, command))
         except BaseException as e:  # noqa: BLE001 - handed to the main loop, which stops the run
             self.error = e
             self._stop_flag.request(f"valve fault: {e}")
 
     def finish(self) -> None:
-        self._finished.set()
+        """Stop sending: waits for a set-point under way; none follows once this returns."""
+        self._finished.set()  # no step starts after this: each checks it under the lock
+        with self._stop_flag.lock:  # and one already under way holds the lock until it is done
+            pass
         if self.is_alive():
-            self.join(timeout=2.0)
+            self.join(timeout=self.JOIN_TIMEOUT_S)
 
 
 def _rig_captures(devices, schedule: Schedule, experiment, stop: _Stop, depth_source,
@@ -544,7 +692,8 @@ def _rig_captures(devices, schedule: Schedule, experiment, stop: _Stop, depth_so
     the summary counts them.
     """
     valves, camera = devices.valves, devices.camera
-    valves.set_pressures(schedule.command(0))
+    if not stop.command(valves, schedule.command(0)):  # a signal during opening or warm-up: nothing moves
+        return
     if experiment.lead_in_s and stop.wait_until(time.monotonic() + experiment.lead_in_s):
         return
     t0 = time.monotonic()
@@ -573,6 +722,8 @@ def _rig_captures(devices, schedule: Schedule, experiment, stop: _Stop, depth_so
             index += 1
     finally:
         driver.finish()
+    if isinstance(driver.error, DeviceError):
+        raise _ValveFaultError(driver.error) from driver.error
     if driver.error is not None:
         raise driver.error
 

@@ -1,21 +1,24 @@
 """The one flag: config loading and its errors, the factory's two branches, and `softarm rig check`."""
 
 import dataclasses
+import re
 import subprocess
 import sys
 import textwrap
 from pathlib import Path
 from typing import Literal
 
+import cv2
 import numpy as np
 import pytest
 
 import twin as twin_package
-from bench.config import DEFAULT_CONFIG, BenchConfig, ConfigError, build_section, load_bench_config
+from bench.config import DEFAULT_CONFIG, MODELS, BenchConfig, ConfigError, build_section, load_bench_config
 from bench.factory import Devices, make_devices
 from bench.rig_check import rig_command
-from estimator import CalibrationFileError
+from estimator import CalibrationFileError, StereoCalibration
 from hardware.emulator import BoardEmulator
+from hardware.errors import DeviceError
 from hardware.interfaces import StereoCamera, ValveBank
 from tests.fakes import (
     ARM_CHANNELS,
@@ -92,6 +95,19 @@ def test_relative_paths_resolve_against_the_config_folder(tmp_path, monkeypatch)
     assert config.path == path.resolve()
 
 
+def test_left_out_defaults_resolve_against_models_not_the_users_folder(tmp_path):
+    """A config elsewhere that leaves a section out gets the repository's defaults (models/twin.toml,
+    runs/), not files beside itself; the paths it does write resolve against its own folder."""
+    path = tmp_path / "x.toml"
+    path.write_text('[recording]\nlossless_frames = true\n')
+    config = load_bench_config(path)
+    assert config.sim.twin == MODELS / "twin.toml" and config.sim.twin.is_file()
+    assert config.recording.root.resolve() == REPO / "runs"
+    path.write_text('[sim]\ntwin = "my_twin.toml"\n[recording]\nroot = "my_runs"\n')
+    config = load_bench_config(path)
+    assert config.sim.twin == tmp_path / "my_twin.toml" and config.recording.root == tmp_path / "my_runs"
+
+
 def test_device_index_and_absolute_paths_stay_as_given(tmp_path):
     path = write_config(tmp_path, source="/dev/video0", calibration=str(tmp_path / "x.conf"))
     assert load_bench_config(path).rig.camera.source == Path("/dev/video0")
@@ -121,6 +137,8 @@ def test_backend_override_and_wrong_backends_list_the_allowed_values(tmp_path):
     (lambda t: t.replace("s3 = 6", "s3 = 0"), r"\[rig.valves\] channels: s1_a and s3 both use board channel 0"),
     (lambda t: t.replace("s3 = 6", 's3 = "six"'), r"\[rig.valves\] channels.s3: expected an integer"),
     (lambda t: t.replace("max_pressure_bar = 2.5", "max_pressure_bar = -1"), r"\[rig.valves\] max_pressure_bar"),
+    (lambda t: t.replace("max_pressure_bar = 2.5", "max_pressure_bar = 2.5\nreply_timeout_s = 0"),
+     r"\[rig.valves\] reply_timeout_s: expected 0 < seconds <= 1"),
     (lambda t: t.replace('resolution = "HD"', 'resolution = "4K"'), r"\[rig.camera\] resolution: expected one of"),
     (lambda t: t.replace("x.conf", "x.yaml"), r"\[rig.camera\] calibration: expected a Stereolabs .conf"),
     (lambda t: t.replace("[sim]", "sim = 3\n[simulation]"), r"unknown key simulation"),
@@ -141,7 +159,7 @@ def test_rig_backend_needs_a_rig_section_and_a_missing_file_is_named(tmp_path):
         load_bench_config(path)
     path.write_text("")
     config = load_bench_config(path)  # an empty file is the sim default
-    assert config.backend == "sim" and config.rig is None and config.sim.twin == tmp_path / "twin.toml"
+    assert config.backend == "sim" and config.rig is None
     with pytest.raises(ConfigError, match="config file not found"):
         load_bench_config(tmp_path / "nope.toml")
 
@@ -167,8 +185,10 @@ def test_build_section_is_generic_for_new_sections(tmp_path):
                 raise ValueError(f"frames: expected a positive count, got {self.frames}")
 
     where = tmp_path / "bench.toml"
-    built = build_section(Experiment, {"kind": "steps", "channels": ["s1_a"], "step": {"at_s": 2}}, where, "experiment")
-    assert built == Experiment("steps", None, ("s1_a",), tmp_path / "runs", Step(2.0, 0.0))
+    built = build_section(Experiment, {"kind": "steps", "channels": ["s1_a"], "step": {"at_s": 2}}, where, "experiment",
+                          defaults_dir=tmp_path / "defaults")
+    assert built == Experiment("steps", None, ("s1_a",), tmp_path / "defaults" / "runs", Step(2.0, 0.0))
+    assert build_section(Experiment, {"kind": "ramp", "out": "o"}, where, "experiment").out == tmp_path / "o"
     for table, message in [
         ({"kind": "sweep"}, r"\[experiment\] kind: expected one of 'ramp', 'steps'"),
         ({"kind": "ramp", "frames": 0}, r"\[experiment\] frames: expected a positive count"),
@@ -228,17 +248,36 @@ def test_a_rig_run_never_imports_the_twin_mujoco_or_pyrender(recorded_rig, board
 
 
 def test_a_missing_calibration_fails_before_anything_moves(recorded_rig, board):
-    config = load_bench_config(write_config(recorded_rig, backend="rig", port=board.port, calibration="SN1.conf"))
-    with pytest.raises(CalibrationFileError, match="SN1.conf: calibration file not found"):
-        make_devices(config)
+    path = write_config(recorded_rig, backend="rig", port=board.port, calibration="SN1.conf")
+    with pytest.raises(CalibrationFileError) as error:
+        make_devices(load_bench_config(path))
+    assert str(error.value) == (f"{path.resolve()} [rig.camera] calibration: {recorded_rig.resolve() / 'SN1.conf'}: "
+                                "calibration file not found")
     assert board.frames_received == 0
 
 
 def test_a_missing_camera_fails_before_anything_moves(recorded_rig, board):
-    config = load_bench_config(write_config(recorded_rig, backend="rig", port=board.port, source="gone.mkv"))
-    with pytest.raises(ValueError, match="gone.mkv' does not exist"):
-        make_devices(config)
+    path = write_config(recorded_rig, backend="rig", port=board.port, source="gone.mkv")
+    with pytest.raises(ValueError, match="gone.mkv' does not exist") as error:
+        make_devices(load_bench_config(path))
+    assert str(error.value).startswith(f"{path.resolve()} [rig.camera] source: ")
     assert board.frames_received == 0
+
+
+def test_a_camera_that_cannot_be_opened_is_named_by_its_key(recorded_rig, board):
+    (recorded_rig / "notes.mkv").write_text("not a video")
+    path = write_config(recorded_rig, backend="rig", port=board.port, source="notes.mkv")
+    with pytest.raises(DeviceError) as error:
+        make_devices(load_bench_config(path))
+    assert str(error.value).startswith(f"{path.resolve()} [rig.camera] source: could not open video")
+    assert board.frames_received == 0
+
+
+def test_a_missing_twin_file_is_named_by_its_key(tmp_path):
+    path = write_config(tmp_path)  # [sim] twin = "twin.toml", which is not there
+    with pytest.raises(ConfigError) as error:
+        make_devices(load_bench_config(path))
+    assert str(error.value) == f"{path.resolve()} [sim] twin: {tmp_path.resolve() / 'twin.toml'}: twin file not found"
 
 
 def test_a_silent_board_closes_the_camera_it_had_opened(recorded_rig, board, monkeypatch):
@@ -260,6 +299,7 @@ def test_a_silent_board_closes_the_camera_it_had_opened(recorded_rig, board, mon
 def test_sim_backend_builds_the_twin_from_its_config(tmp_path, monkeypatch):
     monkeypatch.setattr(twin_package, "Twin", FakeTwin, raising=False)
     config = load_bench_config(write_config(tmp_path / "cfg"))
+    (tmp_path / "cfg" / "twin.toml").touch()  # the factory checks that [sim] twin exists; the fake ignores it
     with make_devices(config) as devices:
         assert isinstance(devices.twin, FakeTwin)
         assert devices.twin.config_path == (tmp_path / "cfg" / "twin.toml").resolve()
@@ -286,6 +326,7 @@ print(sorted(m for m in sys.modules if m.split(".")[0] == "serial" or m == "hard
 
 def test_a_sim_run_never_imports_pyserial(tmp_path):
     path = write_config(tmp_path, port="/dev/ttyACM0")
+    (tmp_path / "twin.toml").touch()  # the fake twin ignores it
     result = subprocess.run([sys.executable, "-c", SIM_CHILD, str(path), "fake"], cwd=REPO, capture_output=True,
                             text=True, timeout=60)
     assert result.returncode == 0, result.stderr
@@ -310,12 +351,6 @@ def test_devices_close_everything_even_when_venting_fails():
     assert not twin.camera.is_connected and not twin.valves.is_connected and twin.closed
 
 
-# These need the real twin (twin.Twin and models/twin.toml, built in parallel); they skip until it lands.
-needs_twin = pytest.mark.skipif(not hasattr(twin_package, "Twin") or not (DEFAULT_CONFIG.parent / "twin.toml").exists(),
-                                reason="twin.Twin / models/twin.toml not built yet")
-
-
-@needs_twin
 def test_default_config_opens_the_real_twin():
     with make_devices(load_bench_config()) as devices:
         assert isinstance(devices.camera, StereoCamera) and isinstance(devices.valves, ValveBank)
@@ -327,7 +362,6 @@ def test_default_config_opens_the_real_twin():
     assert all(v == 0 for v in devices.valves.setpoints_bar.values())
 
 
-@needs_twin
 def test_a_sim_run_with_the_real_twin_never_imports_pyserial():
     result = subprocess.run([sys.executable, "-c", SIM_CHILD, str(DEFAULT_CONFIG), "real"], cwd=REPO,
                             capture_output=True, text=True, timeout=120)
@@ -346,7 +380,8 @@ def test_rig_check_reports_everything_and_moves_nothing(tmp_path, zed_conf_dir, 
     assert rig_command(type("Args", (), {"config": str(path)})()) == 0
     out = capsys.readouterr().out
     for expected in ["2560x720 side-by-side = 2 x 1280x720", "focal left 700.9/700.9 px", "baseline 120.00 mm",
-                     "rectification error on synthetic points: 0.0000 px rms", "firmware softarm-emu/0.1.0",
+                     "row mismatch after rectification: not measured (only 0 features matched",  # a blank frame
+                     "firmware softarm-emu/0.1.0",
                      "7 channels, limit 2.5 bar", "e-stop released", "s3(ch6)=0", "rig OK"]:
         assert expected in out, out
     assert "SET" not in board.commands and board.commands["VENT"] >= 2
@@ -364,4 +399,56 @@ def test_rig_check_fails_clearly(tmp_path, capsys):
 
 def test_rig_check_on_the_default_config_names_the_missing_calibration(capsys):
     assert rig_command(type("Args", (), {"config": None})()) == 1
-    assert "SN00000.conf: calibration file not found" in capsys.readouterr().err
+    assert (f"{DEFAULT_CONFIG} [rig.camera] calibration: {MODELS / 'SN00000.conf'}: calibration file not found"
+            in capsys.readouterr().err)
+
+
+def textured_plane_pair(calibration, depth_m: float = 1.0, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Raw left and right BGR images of a randomly textured plane ``depth_m`` in front of the left
+    camera, parallel to its image, seen through ``calibration`` (distortion, R and T included)."""
+    rng = np.random.default_rng(seed)
+    mm_per_texel, half = 5.0, 300
+    texture = cv2.GaussianBlur(rng.uniform(0, 255, (2 * half, 2 * half)).astype(np.float32), (0, 0), 2.0)
+    texture = cv2.normalize(texture, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    w, h = calibration.image_size
+    uv = np.stack(np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64)), -1).reshape(-1, 1, 2)
+    R, T = calibration.R, calibration.T.reshape(3)
+    images = []
+    for side in ("left", "right"):
+        xy = cv2.undistortPoints(uv, calibration.K(side), calibration.dist(side).reshape(1, -1)).reshape(-1, 2)
+        rays = np.column_stack([xy, np.ones(len(xy))])  # in this camera's frame
+        if side == "left":
+            points = rays * depth_m
+        else:  # x_right = R x_left + T: the ray's points in the left frame are R^T (s r - T); meet z = depth_m
+            rays_left, origin_left = rays @ R, R.T @ T
+            s = (depth_m + origin_left[2]) / rays_left[:, 2]
+            points = rays_left * s[:, None] - origin_left
+        map_x = (points[:, 0] * 1000 / mm_per_texel + half).reshape(h, w).astype(np.float32)
+        map_y = (points[:, 1] * 1000 / mm_per_texel + half).reshape(h, w).astype(np.float32)
+        images.append(cv2.cvtColor(cv2.remap(texture, map_x, map_y, cv2.INTER_LINEAR), cv2.COLOR_GRAY2BGR))
+    return images[0], images[1]
+
+
+def test_rig_check_measures_the_calibration_against_the_camera(tmp_path, board, capsys):
+    """The row mismatch comes from the grabbed frame: near 0 with the camera's own calibration, about
+    f * angle with a file whose right eye is tilted by 0.01 rad (what a knocked camera looks like)."""
+    true = small_calibration(320, 240)
+    left, right = textured_plane_pair(true)
+    write_side_by_side_video(tmp_path / "scene.mkv", [np.hstack([left, right])] * 2)
+    true.save(tmp_path / "true.toml")
+    tilted_R = cv2.Rodrigues(np.array([0.01, 0.0, 0.0]))[0] @ true.R
+    StereoCalibration(true.K_left, true.dist_left, true.K_right, true.dist_right, tilted_R, true.T,
+                      true.image_size).save(tmp_path / "tilted.toml")
+    medians = {}
+    for name in ("true", "tilted"):
+        path = write_config(tmp_path, port=board.port, source="scene.mkv", calibration=f"{name}.toml")
+        assert rig_command(type("Args", (), {"config": str(path)})()) == 0
+        out = capsys.readouterr().out
+        found = re.search(r"row mismatch after rectification: median ([0-9.]+) px, 90 % under [0-9.]+ px "
+                          r"\((\d+) features matched", out)
+        assert found, out
+        medians[name] = float(found.group(1))
+        assert int(found.group(2)) >= 100
+    assert medians["true"] < 0.2
+    expected_px = 0.01 * true.K_right[1, 1]  # about 1.8 px
+    assert abs(medians["tilted"] - expected_px) < 0.4 * expected_px, medians

@@ -104,6 +104,11 @@ def test_not_a_run_folder_and_no_overwrite(tmp_path, written_run):
     folder, _, _ = written_run
     with pytest.raises(RunFolderError, match="already holds a run"):
         RunWriter(folder, RecordingConfig())
+    started = tmp_path / "started"  # killed between config.json and frames.jsonl: still not overwritten
+    started.mkdir()
+    (started / "config.json").write_text("{}")
+    with pytest.raises(RunFolderError, match=r"already holds a run \(config.json\)"):
+        RunWriter(started, RecordingConfig())
 
 
 def test_read_frames_skips_garbage_lines(tmp_path):

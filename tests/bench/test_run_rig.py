@@ -1,6 +1,7 @@
 """``softarm run`` on the rig backend against fake devices: a side-by-side video as the ZED, the valve
-board emulator on a pty, depth maps from a folder. The valves must see the commanded ramp and be
-vented at the end; bad input fails before anything moves; Ctrl-C and SIGTERM vent and finish the files.
+board emulator on a pty, depth maps from a folder (fixtures in ``conftest.py``). The valves must see
+the commanded ramp and be vented at the end; bad input fails before anything moves; Ctrl-C and
+SIGTERM vent and finish the files.
 """
 
 import json
@@ -8,131 +9,19 @@ import os
 import signal
 import subprocess
 import sys
-import textwrap
 import time
 from pathlib import Path
-from types import SimpleNamespace
 
-import cv2
 import numpy as np
 import pytest
 
 from bench.recording import load_run
 from bench.run import run_command
 from estimator import CenterlineEstimator
-from hardware.emulator import BoardEmulator, BoardStateMachine
-from tests.fakes import ARM_CHANNELS, small_calibration, write_side_by_side_video
+from tests.bench.rigkit import rig_config, run_args
 
 REPO = Path(__file__).resolve().parents[2]
-WIDTH, HEIGHT = 320, 240
-ORANGE_BGR = (30, 110, 255)  # inside the estimator's default HSV range
 RAMP_BAR = [0.0, 0.1, 0.2, 0.3, 0.4, 0.5]
-
-
-def arm_polyline_m() -> np.ndarray:
-    """A gently bent 0.6 m arm 1 m in front of the left camera (left camera frame)."""
-    s = np.linspace(0.0, 1.0, 60)
-    return np.column_stack([0.03 * np.sin(2.5 * s), -0.3 + 0.6 * s, np.full_like(s, 1.0)])
-
-
-def draw_pair(calibration, points_m):
-    """Left and right views of a tube of 25 mm radius along ``points_m``, and the left depth in mm."""
-    images, depth = [], np.zeros((HEIGHT, WIDTH), np.uint16)
-    for side in ("left", "right"):
-        image = np.full((HEIGHT, WIDTH, 3), (170, 160, 150), np.uint8)
-        uv = calibration.project(points_m, side)
-        thickness = int(round(2 * 0.025 * calibration.K(side)[0, 0] / 1.0))
-        pts = np.round(uv * 16).astype(np.int32).reshape(-1, 1, 2)
-        cv2.polylines(image, [pts], False, ORANGE_BGR, thickness, cv2.LINE_AA, shift=4)
-        if side == "left":
-            cv2.polylines(depth, [pts], False, 1000, thickness, cv2.LINE_8, shift=4)
-        images.append(image)
-    return images[0], images[1], depth
-
-
-@pytest.fixture
-def rig_folder(tmp_path):
-    """Calibration, a 12-frame side-by-side recording of an arm and its left depth maps (mm)."""
-    folder = tmp_path / "rig"
-    folder.mkdir()
-    calibration = small_calibration(WIDTH, HEIGHT)
-    calibration.save(folder / "calib.toml")
-    left, right, depth = draw_pair(calibration, arm_polyline_m())
-    write_side_by_side_video(folder / "session.mkv", [np.hstack([left, right])] * 12)
-    (folder / "depth").mkdir()
-    for i in range(12):
-        cv2.imwrite(str(folder / "depth" / f"depth_{i:04d}.png"), depth)
-    return folder
-
-
-@pytest.fixture
-def set_commands(monkeypatch):
-    """Every SET frame the emulated board accepts, as millibar per board channel (a spy on the firmware)."""
-    seen: list[list[int]] = []
-    original = BoardStateMachine._on_set
-
-    def spy(self, seq, args, now):
-        reply = original(self, seq, args, now)
-        if not self.estop:
-            seen.append([int(a) for a in args])
-        return reply
-
-    monkeypatch.setattr(BoardStateMachine, "_on_set", spy)
-    return seen
-
-
-@pytest.fixture
-def board(set_commands):
-    with BoardEmulator(channels=7, max_pressure_bar=2.5) as emulator:
-        yield emulator
-
-
-def rig_config(folder: Path, port: str, *, duration_s=1.2, frames=6, max_bar=0.5, step_bar=0.1,
-               channels='["s1_a", "s2_a", "s3"]', calibration="calib.toml", extra="", valves_max=2.5,
-               loop="true") -> Path:
-    path = folder / "bench_rig.toml"
-    path.write_text(textwrap.dedent(f"""\
-        backend = "rig"
-
-        [experiment]
-        kind = "ramp"
-        channels = {channels}
-        max_bar = {max_bar}
-        step_bar = {step_bar}
-        duration_s = {duration_s}
-        frames = {frames}
-
-        [estimator]
-        mode = "default"
-
-        [report]
-        selected_frames = 4
-        compensation_frames = 3
-        {extra}
-        [rig.camera]
-        source = "session.mkv"
-        calibration = "{calibration}"
-        fps = 30
-        loop = {loop}
-
-        [rig.depth]
-        source = "depth"
-        scale_m = 0.001
-
-        [rig.valves]
-        port = "{port}"
-        max_pressure_bar = {valves_max}
-
-        [rig.valves.channels]
-        """) + "\n".join(f"{name} = {i}" for i, name in enumerate(ARM_CHANNELS)) + "\n")
-    return path
-
-
-def run_args(config: Path, out: Path, **kw) -> SimpleNamespace:
-    values = {"config": str(config), "backend": None, "mode": None, "compare": False, "frames": None,
-              "out": str(out), "no_report": False}
-    values.update(kw)
-    return SimpleNamespace(**values)
 
 
 def expected_sets(levels_bar) -> list[list[int]]:
