@@ -38,9 +38,7 @@ def centerline_nodes(mask: np.ndarray, samples: np.ndarray, config: EstimatorCon
     elif cfg.centerline == "skeleton":
         nodes = resample_polyline(ordered_skeleton_path(mask, base_hint), n)
     elif cfg.centerline == "kmeans++":
-        # Algorithm 3 alone has no order: walk the centres greedily from the base end.
-        centres = kmeans_plus_plus(samples, n, seed=cfg.som_seed)
-        nodes = order_greedy(centres, base_hint if base_hint is not None else samples[np.argmin(samples[:, 1])])
+        nodes = _walk_from_base(kmeans_plus_plus(samples, n, seed=cfg.som_seed), samples, base_hint)
     else:
         if warm is not None:
             init = warm
@@ -50,17 +48,32 @@ def centerline_nodes(mask: np.ndarray, samples: np.ndarray, config: EstimatorCon
             init = linear_init(samples, n)
         if cfg.centerline == "competitive":
             nodes = competitive_learning(samples, init, epochs=cfg.som_epochs, alpha=cfg.som_alpha0,
-                                         seed=cfg.som_seed)
+                                         seed=cfg.som_seed, order=cfg.som_order)
+            # Winner-take-all keeps no neighbourhood, so nodes overtake each other (a straight arm
+            # comes back with rows 271, 247, 298, ...): order them like the K-Means++ centres.
+            nodes = _walk_from_base(nodes, samples, base_hint if warm is None else nodes[0])
         else:
             nodes = init
             if cfg.som_schedule == "online":
                 nodes = som_online(samples, nodes, epochs=cfg.som_epochs, alpha0=cfg.som_alpha0,
                                    lam=float(cfg.som_epochs), radius=cfg.som_radius, sigma0=cfg.som_sigma,
-                                   seed=cfg.som_seed, time=cfg.som_time, compiled=cfg.som_compiled)
+                                   seed=cfg.som_seed, time=cfg.som_time, compiled=cfg.som_compiled,
+                                   order=cfg.som_order, shrink=cfg.som_shrink)
             nodes = som_batch(samples, nodes, iterations=cfg.som_refine_iterations)
     if len(nodes) < 2 or warm is not None:
         return nodes
     return _base_first(nodes, base_hint)
+
+
+def _walk_from_base(centres: np.ndarray, samples: np.ndarray, base_hint: np.ndarray | None) -> np.ndarray:
+    """Unordered centres as a chain: a greedy nearest-neighbour walk from the one nearest the base.
+
+    This is the sorting step a user of the clustering baselines has to add (section 4.3); it
+    fails where two parts of the arm come closer than the node spacing, which is the point of
+    the comparison.
+    """
+    start = base_hint if base_hint is not None else samples[np.argmin(samples[:, 1])]
+    return order_greedy(centres, start)
 
 
 def _skeleton_start(mask: np.ndarray, base_hint: np.ndarray | None, n: int) -> np.ndarray:

@@ -1,9 +1,10 @@
 """The paper's clustering baselines (section 4.3): competitive learning and K-Means++.
 
-Neither keeps an order between centres. Competitive learning starts from an ordered linear
-initialisation, so its order survives as long as nodes do not overtake each other; K-Means++
-centres are ordered afterwards by a greedy nearest-neighbour walk from the base, which is what
-a user of these baselines would have to add (and where they fail on bent shapes).
+Neither keeps an order between centres: competitive learning starts from an ordered linear
+initialisation, but with winner-take-all updates nodes overtake each other; K-Means++ centres
+have no order at all. The 2D stage orders both by a greedy nearest-neighbour walk from the base
+(``order_greedy``), which is what a user of these baselines has to add (and where they fail on
+bent shapes).
 """
 
 from __future__ import annotations
@@ -28,20 +29,21 @@ def _competitive(points, nodes, order, alpha):
 
 
 def competitive_learning(points: np.ndarray, init: np.ndarray, *, epochs: int = 15, alpha: float = 0.2,
-                         seed: int = 0) -> np.ndarray:
+                         seed: int = 0, order: str = "shuffled") -> np.ndarray:
     """Algorithm 2: online winner-take-all updates with a constant learning rate.
 
     Args:
         points: (K, 2) pixels.
         init: (n, 2) initial nodes (linear initialisation or the previous frame).
         epochs: training rounds; alpha: learning rate in (0, 1).
+        seed, order: presentation order, as for ``som_online``.
 
     Returns:
-        (n, 2) nodes in the order of ``init``.
+        (n, 2) nodes, indexed like ``init`` (winner-take-all does not keep them in order).
     """
     points = np.ascontiguousarray(points, dtype=np.float64)
     nodes = np.array(init, dtype=np.float64, copy=True)
-    return _competitive(points, nodes, presentation_order(points, epochs, seed), float(alpha))
+    return _competitive(points, nodes, presentation_order(points, epochs, seed, order), float(alpha))
 
 
 def kmeans_plus_plus(points: np.ndarray, n: int, *, iterations: int = 15, seed: int = 0) -> np.ndarray:

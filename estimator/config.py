@@ -9,6 +9,8 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, fields
 
+from estimator.som import ORDERS as SOM_ORDERS
+
 MODES = ("default", "paper")
 CENTERLINES = ("som", "competitive", "kmeans++", "thinning", "skeleton")
 COMPENSATIONS = ("none", "nearest", "windowed")
@@ -65,6 +67,11 @@ class EstimatorConfig:
             N(t) = N (1 - t / lambda) shrinks and nodes beyond ceil(N(t)) are not moved.
         som_seed: seed of the per-epoch presentation order (fixed, so results are reproducible
             and independent of the order of the input points).
+        som_order: presentation order of the points in each epoch: "shuffled" (seeded, after
+            sorting: independent of the input order) or "given" (Algorithm 1's "for each P_k"
+            literally: the contour's traversal order).
+        som_shrink: shrink the neighbourhood radius N(t) = N (1 - t / lambda) (Remark 1) or keep
+            it at N.
         som_compiled: run the numba-compiled SOM (True) or the numpy reference (False, paper speed).
         som_input: "contour" (paper) or "mask" (all arm pixels: unbiased centre).
         som_schedule: "online" (Algorithm 1) or "batch" (deterministic batch SOM).
@@ -117,6 +124,8 @@ class EstimatorConfig:
     som_time: str = "epoch"
     som_sigma: float = 1.0
     som_seed: int = 0
+    som_order: str = "shuffled"
+    som_shrink: bool = True
     som_compiled: bool = True
     som_input: str | None = None
     som_schedule: str | None = None
@@ -148,6 +157,7 @@ class EstimatorConfig:
         _check(self.som_input in ("contour", "mask"), "som_input", "'contour' or 'mask'", self.som_input)
         _check(self.som_schedule in ("online", "batch"), "som_schedule", "'online' or 'batch'", self.som_schedule)
         _check(self.som_time in ("epoch", "sample"), "som_time", "'epoch' or 'sample'", self.som_time)
+        _check(self.som_order in SOM_ORDERS, "som_order", f"one of {SOM_ORDERS}", self.som_order)
         _check(_int(self.n_points) and 3 <= self.n_points <= 500, "n_points", "an integer in [3, 500]",
                self.n_points)
         for name in ("hsv_low", "hsv_high"):
@@ -185,7 +195,7 @@ class EstimatorConfig:
             _check(len(bp) == 2 and all(isinstance(v, int | float) for v in bp), "base_pixel", "(u, v) pixels",
                    self.base_pixel)
             object.__setattr__(self, "base_pixel", (float(bp[0]), float(bp[1])))
-        for name in ("roi", "medial_refinement", "extend_ends", "som_compiled"):
+        for name in ("roi", "medial_refinement", "extend_ends", "som_compiled", "som_shrink"):
             _check(isinstance(getattr(self, name), bool), name, "true or false", getattr(self, name))
 
     @classmethod

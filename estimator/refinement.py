@@ -118,8 +118,11 @@ def _fit(arc: np.ndarray, points: np.ndarray, weights: np.ndarray, at: np.ndarra
     span = arc[-1] - arc[0]
     inner = max(int(span / KNOT_SPACING_PX) - 1, 0)
     knots = np.concatenate([[arc[0]] * 4, np.linspace(arc[0], arc[-1], inner + 2)[1:-1], [arc[-1]] * 4])
-    # Each knot interval needs data (Schoenberg-Whitney); drop interior knots in empty stretches.
-    keep = [k for k in knots[4:-4] if np.any((arc > k - KNOT_SPACING_PX) & (arc < k + KNOT_SPACING_PX))]
+    # Each knot interval needs data (Schoenberg-Whitney); drop interior knots in empty stretches
+    # (a knot more than half a spacing from every sample: across a long gap, consecutive empty
+    # intervals make the fit ill-conditioned and the curve swings off by thousands of pixels).
+    half = 0.5 * KNOT_SPACING_PX
+    keep = [k for k in knots[4:-4] if np.any((arc > k - half) & (arc < k + half))]
     knots = np.concatenate([[arc[0]] * 4, keep, [arc[-1]] * 4])
     spline = make_lsq_spline(arc, points, knots, k=3, w=weights)
     tangent = spline.derivative()(at)
@@ -176,7 +179,10 @@ def refine_centerline(mask: np.ndarray, nodes: np.ndarray, *, iterations: int = 
         if ok.sum() < 6:
             return None
         max_half = 2.0 * float(np.median(half[ok]))
+        before = points
         points, tangent = _fit(arc[ok], mids[ok], np.ones(ok.sum()), arc)
+        if not _follows(points, before, ok, mids, float(np.median(half[ok]))):
+            return None  # nodes too disordered for a curve through them (a baseline's zig-zag)
         # Keep only the stretch between the outermost supported samples; ends are found next.
         first, last = np.flatnonzero(ok)[[0, -1]]
         points, tangent, ok, half = (points[first:last + 1], tangent[first:last + 1], ok[first:last + 1],
@@ -192,6 +198,18 @@ def refine_centerline(mask: np.ndarray, nodes: np.ndarray, *, iterations: int = 
         ok = np.concatenate([np.zeros(len(head), bool), ok, np.zeros(len(tail), bool)])
         half = np.concatenate([np.full(len(head), np.nan), half, np.full(len(tail), np.nan)])
     return Centerline2D(points, ok, np.where(ok, half, np.nan), _arc(points))
+
+
+def _follows(fitted: np.ndarray, before: np.ndarray, ok: np.ndarray, mids: np.ndarray, half_width: float) -> bool:
+    """The smoothing fit stays near the curve it refines: finite, within a tube width of the chord
+    midpoints it was fitted to, and, across unsupported stretches, within a few widths of the curve
+    before the pass (an ill-posed fit through disordered nodes swings off by thousands of pixels)."""
+    inside = slice(*np.flatnonzero(ok)[[0, -1]] + (0, 1))
+    fitted, before = fitted[inside], before[inside]
+    if not np.all(np.isfinite(fitted)):
+        return False
+    near_mids = np.max(np.linalg.norm(fitted[ok[inside]] - mids[inside][ok[inside]], axis=1)) <= 2.0 * half_width
+    return bool(near_mids and np.max(np.linalg.norm(fitted - before, axis=1)) <= 6.0 * half_width)
 
 
 def _full_width(arc: np.ndarray, half: np.ndarray, ok: np.ndarray, tolerance: float = 0.08,

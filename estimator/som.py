@@ -13,7 +13,10 @@ Choices where the paper is ambiguous (all configurable through ``EstimatorConfig
   contour input the chain then zig-zags between the two edges of the arm (a lower quantization
   error than the centre line), which is not what the paper's figures show.
 - Points are presented in a seeded random order per epoch, drawn after sorting the points, so
-  the result does not depend on the order in which the points were given.
+  the result does not depend on the order in which the points were given (``order="shuffled"``);
+  ``order="given"`` presents them as given, every epoch (Algorithm 1's "for each P_k" read
+  literally: the contour's traversal order, which drags the chain along the contour).
+- ``shrink=False`` keeps the radius N fixed instead of shrinking it.
 """
 
 from __future__ import annotations
@@ -23,10 +26,17 @@ import math
 import numba
 import numpy as np
 
+ORDERS = ("shuffled", "given")
 
-def presentation_order(points: np.ndarray, epochs: int, seed: int) -> np.ndarray:
-    """(epochs, K) int64 indices into ``points``: a seeded shuffle of the sorted points per epoch."""
+
+def presentation_order(points: np.ndarray, epochs: int, seed: int, order: str = "shuffled") -> np.ndarray:
+    """(epochs, K) int64 indices into ``points``: a seeded shuffle of the sorted points per epoch,
+    or (``order="given"``) the points as given, every epoch."""
     points = np.asarray(points, dtype=np.float64)
+    if order == "given":
+        return np.tile(np.arange(len(points), dtype=np.int64), (epochs, 1))
+    if order != "shuffled":
+        raise ValueError(f"order: expected one of {ORDERS}, got {order!r}")
     canonical = np.lexsort((points[:, 1], points[:, 0]))
     rng = np.random.default_rng(seed)
     return np.stack([canonical[rng.permutation(len(points))] for _ in range(epochs)]).astype(np.int64)
@@ -57,11 +67,11 @@ def linear_init(points: np.ndarray, n: int) -> np.ndarray:
 
 
 def _schedule(epoch: int, index: int, count: int, epochs: int, alpha0: float, lam: float, radius: float,
-              sigma0: float, per_sample: bool) -> tuple[float, int, float]:
+              sigma0: float, per_sample: bool, shrinking: bool) -> tuple[float, int, float]:
     """Learning rate, integer reach and Gaussian width for one update (shared by both versions)."""
     t = epoch * count + index if per_sample else epoch
     alpha = alpha0 / (1.0 + t / lam)
-    shrink = 1.0 - epoch / epochs
+    shrink = 1.0 - epoch / epochs if shrinking else 1.0
     reach = max(1, math.ceil(radius * shrink - 1e-12))
     return alpha, reach, sigma0
 
@@ -85,7 +95,7 @@ def winner(px, py, nodes):
 
 
 @numba.njit(cache=True, nogil=True)
-def _som_online_compiled(points, nodes, order, alpha0, lam, radius, sigma0, per_sample):
+def _som_online_compiled(points, nodes, order, alpha0, lam, radius, sigma0, per_sample, shrinking):
     n = nodes.shape[0]
     epochs, count = order.shape
     for e in range(epochs):
@@ -94,7 +104,8 @@ def _som_online_compiled(points, nodes, order, alpha0, lam, radius, sigma0, per_
             px = points[k, 0]
             py = points[k, 1]
             best = winner(px, py, nodes)
-            alpha, reach, sigma = _schedule_jit(e, i, count, epochs, alpha0, lam, radius, sigma0, per_sample)
+            alpha, reach, sigma = _schedule_jit(e, i, count, epochs, alpha0, lam, radius, sigma0, per_sample,
+                                                shrinking)
             lo = max(0, best - reach)
             hi = min(n - 1, best + reach)
             for j in range(lo, hi + 1):  # eq. (3) over the winning neighbourhood
@@ -107,7 +118,7 @@ def _som_online_compiled(points, nodes, order, alpha0, lam, radius, sigma0, per_
 
 def som_online(points: np.ndarray, init: np.ndarray, *, epochs: int = 15, alpha0: float = 0.2, lam: float = 15.0,
                radius: int = 2, sigma0: float = 1.0, seed: int = 0, time: str = "epoch",
-               compiled: bool = True) -> np.ndarray:
+               compiled: bool = True, order: str = "shuffled", shrink: bool = True) -> np.ndarray:
     """Train the online SOM of Algorithm 1 from ``init`` (linear init or the previous frame).
 
     Args:
@@ -120,6 +131,8 @@ def som_online(points: np.ndarray, init: np.ndarray, *, epochs: int = 15, alpha0
         seed: presentation order seed.
         time: "epoch" or "sample", what t counts.
         compiled: numba (True) or the numpy reference (False).
+        order: "shuffled" (seeded, independent of the input order) or "given" (as given).
+        shrink: shrink the neighbourhood radius over the epochs (Remark 1) or keep it at N.
 
     Returns:
         (n, 2) trained nodes, in the order of ``init``.
@@ -130,14 +143,14 @@ def som_online(points: np.ndarray, init: np.ndarray, *, epochs: int = 15, alpha0
         raise ValueError(f"init: expected (n, 2) nodes with n >= 2, got {nodes.shape}")
     if time not in ("epoch", "sample"):
         raise ValueError(f"time: expected 'epoch' or 'sample', got {time!r}")
-    order = presentation_order(points, epochs, seed)
-    args = (float(alpha0), float(lam), float(radius), float(sigma0), time == "sample")
+    sequence = presentation_order(points, epochs, seed, order)
+    args = (float(alpha0), float(lam), float(radius), float(sigma0), time == "sample", bool(shrink))
     if compiled:
-        return _som_online_compiled(points, nodes, order, *args)
-    return _som_online_reference(points, nodes, order, *args)
+        return _som_online_compiled(points, nodes, sequence, *args)
+    return _som_online_reference(points, nodes, sequence, *args)
 
 
-def _som_online_reference(points, nodes, order, alpha0, lam, radius, sigma0, per_sample):
+def _som_online_reference(points, nodes, order, alpha0, lam, radius, sigma0, per_sample, shrinking):
     """The same arithmetic as the compiled loop, vectorised over nodes with numpy."""
     n = len(nodes)
     epochs, count = order.shape
@@ -146,7 +159,7 @@ def _som_online_reference(points, nodes, order, alpha0, lam, radius, sigma0, per
         for i in range(count):
             p = points[order[e, i]]
             best = int(np.argmin(((p - nodes) ** 2).sum(axis=1)))
-            alpha, reach, sigma = _schedule(e, i, count, epochs, alpha0, lam, radius, sigma0, per_sample)
+            alpha, reach, sigma = _schedule(e, i, count, epochs, alpha0, lam, radius, sigma0, per_sample, shrinking)
             near = np.abs(index - best) <= reach
             r = (index[near] - best).astype(np.float64)
             eta = np.exp(-(r * r) / (2.0 * sigma * sigma))

@@ -51,18 +51,19 @@ def test_default_mode_warm_sequence(bending_sequence):
 
 
 def test_paper_mode_stays_in_its_band(cold_scenes, bending_sequence):
-    """The reproduction baseline: <= 25 mm over the same frames as the default mode's targets.
+    """The reproduction baseline: <= 25 mm on each scene set the default mode's targets use.
 
-    Measured: cold single frames 25.1 mm pooled (raw pair 26.1, rectified pair 24.0), the warm
-    sequence 21.5 mm, all 40 frames 22.4 mm. Cold frames alone sit at the edge of the band: the
-    online SOM's last epochs (alpha near 0.1) leave each node a few pixels off, differently in each
-    image. The band is not tuned: each set has its own limit, so a regression in either shows.
+    Measured: cold single frames 22.0 mm pooled (raw pair 23.2, rectified pair 20.8), the warm
+    sequence 24.5 mm (OpenCV 5, numpy 2.4). The online SOM's last epochs (alpha near 0.1) leave
+    each node a few pixels off, differently in each image, and a pixel of disparity is about
+    12 mm of depth at 1 m. The band is not tuned, and it has a floor: a paper mode within a few
+    times the default mode's error would no longer reproduce the paper as written.
     """
     cold = list(cold_scores(cold_scenes, "paper").values())
     warm = sequence_scores(bending_sequence, "paper")
-    assert pooled(cold + warm) <= 25.0
+    assert pooled(cold) <= 25.0
     assert pooled(warm) <= 25.0
-    assert pooled(cold) <= 27.0
+    assert pooled(cold) >= 8.0 and pooled(warm) >= 8.0
 
 
 @pytest.mark.parametrize("name", sorted(u_shapes()))

@@ -27,11 +27,18 @@ def test_score_against_backbone():
     assert score["rmse_mm"] == pytest.approx(5.0)
     assert score["rmse_x_mm"] == pytest.approx(3.0) and score["rmse_z_mm"] == pytest.approx(4.0)
     assert score["max_mm"] == pytest.approx(5.0) and score["tip_mm"] == pytest.approx(5.0)
+    assert score["base_mm"] == pytest.approx(5.0) and score["arc_rmse_mm"] == pytest.approx(5.0)
     assert score["length_error_mm"] == pytest.approx(0.0, abs=1e-9)
     short = backbone[:51:5]  # stops half way: small point-to-curve error, large tip error
     score = metrics.score_against_backbone(short, backbone)
     assert score["rmse_mm"] < 1e-9 and score["tip_mm"] == pytest.approx(250.0)
-    assert score["arc_rmse_mm"] > 100
+    assert score["base_mm"] == pytest.approx(0.0, abs=1e-9)
+    assert score["length_error_mm"] == pytest.approx(-250.0)
+    # the point at arc fraction f = k/10 sits at 0.25 f instead of 0.5 f along the backbone:
+    # RMSE 250 mm * sqrt(mean(f^2)) = 250 * sqrt(385 / 1100)
+    assert score["arc_rmse_mm"] == pytest.approx(250.0 * np.sqrt(385 / 1100))
+    tip_first = metrics.score_against_backbone(backbone[::-10], backbone)  # the right curve, reversed
+    assert tip_first["rmse_mm"] < 1e-9 and tip_first["base_mm"] == pytest.approx(500.0)
 
 
 def test_depth_camera_points_back_project_the_depth_map():

@@ -52,9 +52,10 @@ def test_bad_input_names_expected_and_actual(scene, left, message):
         CenterlineEstimator(scene.calibration).estimate(left, scene.right)
 
 
-def test_armless_frame_is_invalid_and_keeps_the_warm_state(bending_sequence):
+@pytest.mark.parametrize("mode", ["default", "paper"])
+def test_armless_frame_is_invalid_and_keeps_the_warm_state(bending_sequence, mode):
     frames = bending_sequence
-    est = CenterlineEstimator(frames[0].calibration)
+    est = CenterlineEstimator(frames[0].calibration, EstimatorConfig(mode=mode))
     assert est.estimate(frames[10].left, frames[10].right).valid
     warm = {side: nodes.copy() for side, nodes in est._warm.items()}
     blank = np.full_like(frames[0].left, (200, 190, 180))
@@ -84,12 +85,14 @@ def test_reset_forgets_the_previous_frame(bending_sequence):
     np.testing.assert_array_equal(est.estimate(frame.left, frame.right).points, fresh.points)
 
 
-def test_folded_arm_is_reported_invalid_not_silently_wrong():
+@pytest.mark.parametrize("mode", ["default", "paper"])
+def test_folded_arm_is_reported_invalid_not_silently_wrong(mode):
     calib = zed_like_calibration()
     points, joints = folded_shape()
     scene = render_scene(calib, points, joints)
-    result = CenterlineEstimator(calib).estimate(scene.left, scene.right)
-    assert not result.valid and ("self-overlap" in result.reason or "visible" in result.reason)
+    result = CenterlineEstimator(calib, EstimatorConfig(mode=mode)).estimate(scene.left, scene.right)
+    assert not result.valid
+    assert any(word in result.reason for word in ("self-overlap", "visible", "implausible")), result.reason
 
 
 def test_base_pixel_picks_the_base_end(scene):
@@ -104,21 +107,42 @@ def test_base_pixel_picks_the_base_end(scene):
     assert score_against_backbone(result.points, scene.gt_points)["rmse_mm"] < 15.0
 
 
-@pytest.mark.parametrize("mode", ["default", "paper"])
+def _stage_scores(cold_scenes, mode: str, centerline: str) -> tuple[int, float]:
+    """Run one 2D stage through the full 3D pipeline on every cold scene: (valid count, pooled RMSE)."""
+    rmse = []
+    for name, scene in cold_scenes.items():
+        est = CenterlineEstimator(scene.calibration, EstimatorConfig(mode=mode, centerline=centerline))
+        result = est.estimate(scene.left, scene.right)  # never raises on a well-formed frame
+        if not result.valid:
+            assert result.reason and result.points.shape == (0, 3), name
+            continue
+        assert result.points.shape == (20, 3) and np.all(np.isfinite(result.points)), name
+        rmse.append(score_against_backbone(result.points, scene.gt_points)["rmse_mm"])
+    return len(rmse), float(np.sqrt(np.mean(np.square(rmse)))) if rmse else float("nan")
+
+
 @pytest.mark.parametrize("centerline", CENTERLINES)
-def test_every_centerline_stage_runs_the_full_3d_pipeline(cold_scenes, mode, centerline):
-    """Every stage runs end to end. Competitive learning and K-Means++ may tangle the chain
-    (the paper's Fig. 7): then the frame is flagged invalid or scored badly, never a crash."""
-    scene = cold_scenes["raw/c_bend"]
-    est = CenterlineEstimator(scene.calibration, EstimatorConfig(mode=mode, centerline=centerline))
-    result = est.estimate(scene.left, scene.right)
-    if not result.valid:
-        assert centerline in ("competitive", "kmeans++") and result.reason
-        return
-    assert result.points.shape == (20, 3) and np.all(np.isfinite(result.points))
-    rmse = score_against_backbone(result.points, scene.gt_points)["rmse_mm"]
-    if centerline in ("som", "skeleton", "thinning"):  # this shape is monotonic down the rows
-        assert rmse < (5.0 if mode == "default" else 60.0)
+def test_every_centerline_stage_runs_the_full_3d_pipeline(cold_scenes, centerline):
+    """Every 2D stage of section 4.3 runs end to end on all ten cold scenes, in both modes.
+
+    Measured (valid of 10, pooled RMSE): default mode SOM 10, 1.7 mm; thinning 10, 1.7 mm;
+    ordered skeleton 10, 2.0 mm; competitive learning 8, 3.6 mm; K-Means++ 6, 2.2 mm (the rest
+    flagged: their greedy ordering zig-zags across the arm). Paper mode: SOM 10, 22 mm; thinning
+    10, 26 mm; skeleton 10, 19 mm; competitive learning and K-Means++ 0 (on contour input their
+    centres sit on the edges, the chain zig-zags between them and the depth scatters over metres:
+    flagged implausible, the paper's Fig. 7 conclusion).
+    """
+    count = len(cold_scenes)
+    valid, rmse = _stage_scores(cold_scenes, "default", centerline)
+    if centerline in ("som", "thinning", "skeleton"):
+        assert valid == count and rmse <= 2.5
+    else:
+        assert valid >= count // 2 and rmse <= 6.0
+    valid, rmse = _stage_scores(cold_scenes, "paper", centerline)
+    if centerline in ("som", "thinning", "skeleton"):
+        assert valid == count and rmse <= 30.0
+    else:  # never better than the paper's SOM on the frames it does not flag
+        assert valid == 0 or rmse > 25.0
 
 
 def test_warm_up_compiles_and_leaves_no_warm_state(zed_calibration):

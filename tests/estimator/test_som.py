@@ -1,6 +1,8 @@
 """SOM properties: ordered base to tip, independent of input order, compiled equals reference."""
 
+import cv2
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -47,12 +49,13 @@ def test_som_does_not_depend_on_input_order(seed):
 
 
 @settings(max_examples=15, deadline=None)
-@given(seed=st.integers(0, 10_000), per_sample=st.booleans(), sigma=st.floats(0.3, 3.0))
-def test_compiled_som_equals_numpy_reference(seed, per_sample, sigma):
+@given(seed=st.integers(0, 10_000), per_sample=st.booleans(), sigma=st.floats(0.3, 3.0),
+       order=st.sampled_from(["shuffled", "given"]), shrink=st.booleans())
+def test_compiled_som_equals_numpy_reference(seed, per_sample, sigma, order, shrink):
     rng = np.random.default_rng(seed)
     points, _ = band_points(rng, 0.7, count=200)
     init = linear_init(points, 20)
-    kwargs = dict(seed=seed, time="sample" if per_sample else "epoch", sigma0=sigma)
+    kwargs = dict(seed=seed, time="sample" if per_sample else "epoch", sigma0=sigma, order=order, shrink=shrink)
     compiled = som_online(points, init, compiled=True, **kwargs)
     reference = som_online(points, init, compiled=False, **kwargs)
     np.testing.assert_allclose(compiled, reference, atol=1e-9)
@@ -62,10 +65,43 @@ def test_learning_rate_ends_near_a_tenth_with_table_1():
     """alpha(t) = alpha0 / (1 + t / lambda) with t counting epochs: 0.2 falls to about 0.1."""
     from estimator.som import _schedule
 
-    first = _schedule(0, 0, 100, 15, 0.2, 15.0, 2.0, 1.0, False)
-    last = _schedule(14, 99, 100, 15, 0.2, 15.0, 2.0, 1.0, False)
+    first = _schedule(0, 0, 100, 15, 0.2, 15.0, 2.0, 1.0, False, True)
+    last = _schedule(14, 99, 100, 15, 0.2, 15.0, 2.0, 1.0, False, True)
     assert first[0] == 0.2 and first[1] == 2
     assert 0.1 < last[0] < 0.11 and last[1] == 1
+    # t counting samples: alpha has fallen to alpha0 / (1 + 1499 / 15) by the last update
+    assert _schedule(14, 99, 100, 15, 0.2, 15.0, 2.0, 1.0, True, True)[0] == pytest.approx(0.2 / (1 + 1499 / 15))
+    # a fixed radius keeps N = 2 to the end
+    assert _schedule(14, 99, 100, 15, 0.2, 15.0, 2.0, 1.0, False, False)[1] == 2
+
+
+def band_contour(bend: float, half_width: float = 15.0, step: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """The outline of a filled bent band (what the paper's SOM sees: Canny contour, every 4th point)."""
+    mask = np.zeros((700, 800), np.uint8)
+    _, centre = band_points(np.random.default_rng(0), bend, count=1)
+    cv2.polylines(mask, [np.round(centre).astype(np.int32)], False, 255, thickness=int(2 * half_width))
+    contours, _ = cv2.findContours(cv2.Canny(mask, 50, 150), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    return np.vstack([c.reshape(-1, 2) for c in contours])[::step].astype(np.float64), centre
+
+
+@pytest.mark.parametrize("bend", [0.0, 0.6, -0.9])
+def test_table_1_som_on_contour_input_is_ordered_and_between_the_edges(bend):
+    """The paper's input (contour points on both edges): the chain still runs base to tip down the
+    band's middle. (Presented in the contour's own traversal order, ``order="given"``, the chain
+    is dragged round the outline and folds: why the default presentation is shuffled.)"""
+    points, centre = band_contour(bend)
+    nodes = som_online(points, linear_init(points, 20))
+    assert np.all(np.diff(nodes[:, 1]) > 0)
+    closest, _ = metrics.closest_points_on_polyline(nodes[1:-1], centre)
+    assert np.max(np.linalg.norm(nodes[1:-1] - closest, axis=1)) < 15.0  # inside the band
+
+
+def test_given_order_presents_points_as_given():
+    points = np.random.default_rng(1).uniform(0, 100, (30, 2))
+    order = presentation_order(points, 3, seed=0, order="given")
+    assert (order == np.arange(30)).all()
+    with pytest.raises(ValueError, match="order: expected one of"):
+        presentation_order(points, 3, seed=0, order="random")
 
 
 def test_linear_init_spans_the_points_base_first():
