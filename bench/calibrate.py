@@ -33,11 +33,26 @@ TARGETS = {"rms_px": 0.3, "baseline_mm": 0.5, "focal_pct": 0.5}
 
 
 def _board(args) -> BoardSpec:
-    """The board: 9 x 6 inner corners, 40 mm squares, unless the command line says otherwise."""
-    cols = getattr(args, "board_cols", None) or 9
-    rows = getattr(args, "board_rows", None) or 6
-    square_mm = getattr(args, "square_mm", None) or 40.0
-    return BoardSpec(int(cols), int(rows), float(square_mm) / 1000.0)
+    """The board: 9 x 6 inner corners, 40 mm squares, unless ``--board COLSxROWS --square-mm`` say otherwise.
+
+    Raises:
+        ValueError: a malformed ``--board`` or a non-positive ``--square-mm``.
+    """
+    cols, rows = 9, 6
+    board = getattr(args, "board", None)
+    if board:
+        try:
+            cols, rows = (int(v) for v in str(board).lower().split("x"))
+        except ValueError:
+            raise ValueError(f"--board {board}: expected inner corners as COLSxROWS, e.g. 9x6") from None
+        if cols < 3 or rows < 3 or cols == rows:
+            raise ValueError(f"--board {board}: expected at least 3x3 inner corners, columns and rows different "
+                             "(a square board's orientation is ambiguous)")
+    square_mm = getattr(args, "square_mm", None)
+    square_mm = 40.0 if square_mm is None else float(square_mm)
+    if not square_mm > 0:
+        raise ValueError(f"--square-mm {square_mm:g}: expected the printed square size in mm, above 0")
+    return BoardSpec(cols, rows, square_mm / 1000.0)
 
 
 def _out_path(args) -> Path:
@@ -101,7 +116,7 @@ def _calibrate_sim(config, args, board: BoardSpec, n_views: int, out: Path) -> i
     print(f"recovery targets (RMS < {TARGETS['rms_px']} px, baseline within {TARGETS['baseline_mm']} mm, focal within "
           f"{TARGETS['focal_pct']} %): {'met' if ok else 'NOT met'}")
     print(f"wrote {out}")
-    return 0
+    return 0 if ok else 1  # the twin knows the truth: missing it is a failure of the workflow
 
 
 def _nominal_calibration(resolution: str) -> StereoCalibration:
@@ -173,7 +188,12 @@ def _calibrate_rig(config, args, board: BoardSpec, n_views: int, out: Path) -> i
 
 
 def calibrate_command(args) -> int:
-    """Entry point of ``softarm calibrate`` (arguments: config, backend, out, views)."""
+    """Entry point of ``softarm calibrate`` (arguments: config, backend, out, views, board, square_mm).
+
+    Returns:
+        0 calibrated (on the twin: and the recovery targets met), 1 failed or targets missed,
+        2 bad arguments or config.
+    """
     from bench.config import ConfigError, load_bench_config
 
     try:
@@ -191,7 +211,11 @@ def calibrate_command(args) -> int:
     if n_views < 6:
         print(f"softarm calibrate: --views {n_views}: at least 6 views are needed", file=sys.stderr)
         return 2
-    board = _board(args)
+    try:
+        board = _board(args)
+    except ValueError as e:
+        print(f"softarm calibrate: {e}", file=sys.stderr)
+        return 2
     out = _out_path(args)
     if config.backend == "sim":
         return _calibrate_sim(config, args, board, n_views, out)

@@ -68,6 +68,8 @@ def build_parser() -> argparse.ArgumentParser:
     calibrate.add_argument("--backend", choices=("sim", "rig"), help="override the config's backend")
     calibrate.add_argument("--out", help="calibration file to write (TOML)")
     calibrate.add_argument("--views", type=int, help="number of board views to use")
+    calibrate.add_argument("--board", metavar="COLSxROWS", help="inner corners of the checkerboard; default 9x6")
+    calibrate.add_argument("--square-mm", type=float, help="printed square size in mm; default 40")
 
     rig = add("rig", "Check the physical rig's devices without moving anything.", "softarm rig check")
     rig.add_argument("action", choices=("check",))
@@ -78,13 +80,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     module_name, function_name = _HANDLERS[args.command]
-    try:
-        module = importlib.import_module(module_name)
-    except ModuleNotFoundError as e:
-        if e.name != module_name:
-            raise
-        print(f"softarm {args.command}: not built yet in this version", file=sys.stderr)
-        return 2
+    module = importlib.import_module(module_name)
     return int(getattr(module, function_name)(args) or 0)
 
 

@@ -107,7 +107,7 @@ class SimStereoCamera(StereoCamera):
 
     def depth_left(self) -> np.ndarray:
         """Depth of the last grabbed frame: (H, W) float32 metres along the left optical axis at
-        each RAW left pixel; ``inf`` where only background is seen.
+        each RAW left pixel; ``inf`` where only background is seen. A copy: the caller may change it.
 
         Raises:
             NotConnectedError: not connected.
@@ -117,7 +117,7 @@ class SimStereoCamera(StereoCamera):
             raise NotConnectedError(f"{type(self).__name__}: depth_left() before connect()")
         if self._last_depth is None:
             raise DeviceError(f"{type(self).__name__}: depth_left() before the first grab()")
-        return self._last_depth
+        return self._last_depth.copy()
 
     @property
     def last_shape(self) -> ArmShape | None:

@@ -163,6 +163,10 @@ def test_helical_pma_bends_and_twists_its_section(params):
                                                        rel=0.01)
     assert sim.section_bend_deg()[2] > 45
     assert np.all(np.abs(sim.section_twist_deg()[:2]) < 1e-6)
+    # extensile: the section lengthens by its axial load over EA
+    strain = (sim.section_lengths_m()[2] - section.length_m) / section.length_m
+    assert pma.kind == "extensile"
+    assert strain == pytest.approx(float(pma.moment_at(bar)) / pma.moment_arm_m / section.EA_N, rel=0.02)
     # bending while twisting makes a space curve: section 3 leaves its plane (a planar arc gives ~1e-6)
     distal = sim.backbone(400)[np.linspace(0, 1, 400) > 0.72]
     centred = distal - distal.mean(axis=0)
@@ -206,6 +210,7 @@ def test_full_ramp_on_all_channels_is_stable(params, arm):
     # opposed PMAs cancel their bending; section 1 shortens (contractile), sections 2 and 3 lengthen
     assert lengths[0] < params.sections[0].length_m * 0.95
     assert lengths[1] > params.sections[1].length_m * 1.05
+    assert lengths[2] > params.sections[2].length_m * 1.05
     assert np.all(arm.section_bend_deg()[:2] < 5)
 
 

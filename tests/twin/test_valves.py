@@ -1,11 +1,15 @@
 """The simulated valve bank honours the ValveBank contract and drives the simulation."""
 
+import logging
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from hardware.errors import DeviceError, NotConnectedError
 from twin.params import ArmParams
 from twin.physics import ArmSimulation
+from twin.twin import Twin
 from twin.valves import SimValveBank
 
 
@@ -82,8 +86,23 @@ def test_bad_set_points_are_value_errors_naming_the_channel(bank, sim, pressures
         assert sim.commanded_bar[0] == 1.0  # nothing of the rejected command reached the arm
 
 
-def test_clamping_bank_clamps(sim):
+def test_clamping_bank_clamps_and_logs(sim, caplog):
     sim.reset()
-    with SimValveBank(sim, clamp=True) as bank:
+    with caplog.at_level(logging.WARNING), SimValveBank(sim, clamp=True) as bank:
         bank.set_pressures({"s2_a": 3.0, "s2_b": -1.0})
         assert sim.commanded_bar[4] == 2.5 and sim.commanded_bar[5] == 0.0
+    assert any("s2_a" in r.getMessage() and "clamp" in r.getMessage() for r in caplog.records), caplog.text
+    assert any("s2_b" in r.getMessage() for r in caplog.records), caplog.text
+
+
+def test_the_twin_config_turns_clamping_on(tmp_path, caplog):
+    """``[valves] clamp = true`` in a twin file reaches the twin's valve bank."""
+    models = Path(__file__).resolve().parents[2] / "models"
+    text = (models / "twin.toml").read_text().replace("clamp = false", "clamp = true")
+    text = text.replace('arm = "arm.toml"', f'arm = "{models / "arm.toml"}"')
+    text = text.replace('camera = "camera.toml"', f'camera = "{models / "camera.toml"}"')
+    (tmp_path / "twin.toml").write_text(text)
+    with Twin.from_config(tmp_path / "twin.toml") as tw, caplog.at_level(logging.WARNING), tw.valves as bank:
+        bank.set_pressures({"s3": 9.0})
+        assert bank.setpoints_bar["s3"] == 2.5
+    assert "s3" in caplog.text
