@@ -231,10 +231,17 @@ class ValveBank(ABC):
         return  # not abstract on purpose: a device with no background activity has nothing to record
 
     def vent(self) -> None:
-        """Command 0 bar on every channel."""
-        if self.is_connected:
-            self._vent()
-        self._setpoints_bar = np.zeros(len(self._channels))
+        """Command 0 bar on every channel.
+
+        The remembered set-points are zeroed even when the device reports a fault while venting:
+        a later partial ``set_pressures()`` (after a reconnect) must start from 0 bar on the
+        channels it does not name, never from the pressures before the vent.
+        """
+        try:
+            if self.is_connected:
+                self._vent()
+        finally:
+            self._setpoints_bar = np.zeros(len(self._channels))
 
     def close(self) -> None:
         """Vent, then release the device. Closing twice is harmless.

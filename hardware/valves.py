@@ -132,6 +132,7 @@ class SerialValveBank(ValveBank):
             self._version = None
             self._version = self._check_version(self._exchange("VER")[1])
             self._exchange("VENT", connecting=True)
+            self._setpoints_bar = np.zeros(len(self.channels))  # the board starts vented, whatever was set before
         except BaseException:
             self._serial.close()
             self._serial = None
@@ -437,7 +438,8 @@ class SerialValveBank(ValveBank):
                                         "vented; reconnect to continue")
                     fault.__cause__ = e
                 if not self._is_standing(fault):
-                    self._record(fault)
+                    with self._lock:  # its VENT must not interleave with a caller's frame on the wire
+                        self._record(fault)
                 if str(self._fault) != logged:
                     logged = str(self._fault)
                     _log.error("%s", self._fault)

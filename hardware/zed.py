@@ -94,6 +94,8 @@ def load_factory_calibration(path: str | Path, resolution: str = "HD") -> Stereo
         for candidate in (key, *alternatives):
             if candidate.lower() in table:
                 text = table[candidate.lower()]
+                if not text.strip() and default is not None:
+                    return default  # "k3=" written without a value: the term is absent
                 try:
                     value = float(text)
                 except ValueError:
@@ -322,6 +324,9 @@ class ZedCamera(StereoCamera):
                               "a ZED on USB 2 only offers small modes: use a USB 3 port and cable")
         if got_fps > 0 and abs(got_fps - self._fps) > 0.5:
             raise DeviceError(f"camera {self._source!r} fell back to {got_fps:g} fps instead of {requested}")
+        if fourcc.isalnum() and fourcc != "YUYV":  # a readable code that is not the ZED's only format
+            raise DeviceError(f"camera {self._source!r} streams {fourcc} instead of YUYV: not a ZED, or a "
+                              "driver that converts; check the device with `v4l2-ctl --list-formats-ext`")
         if got_fps <= 0:
             _log.warning("camera %r does not report its frame rate; assuming %g fps", self._source, self._fps)
         return CaptureMode(str(self._source), "device", got, got_fps if got_fps > 0 else self._fps, fourcc,

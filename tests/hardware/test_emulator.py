@@ -3,6 +3,8 @@
 import numpy as np
 import pytest
 import serial
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from hardware.emulator import BoardEmulator, BoardStateMachine
 from hardware.protocol import BoardStatus, BoardVersion, decode, encode
@@ -130,3 +132,46 @@ def test_constructor_checks_its_arguments():
         BoardStateMachine(channels=0)
     with pytest.raises(ValueError, match="max_pressure_bar"):
         BoardStateMachine(max_pressure_bar=7.0, full_scale_bar=6.0)
+
+
+_VERBS = ("VER", "STAT", "HB", "SET", "VENT", "ESTOP", "CLR", "FOO")
+_step = st.one_of(
+    st.tuples(st.just("frame"), st.integers(0, 9999), st.sampled_from(_VERBS),
+              st.lists(st.integers(0, 70000).map(str) | st.text("0123456789x-.", max_size=6), max_size=9)),
+    st.tuples(st.just("bytes"), st.binary(max_size=40)),
+    st.tuples(st.just("wait"), st.floats(0.0, 0.4)),
+    st.tuples(st.just("button")),
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(steps=st.lists(_step, max_size=40))
+def test_random_traffic_never_crashes_the_firmware_logic_or_breaks_its_safety(steps):
+    """Whatever arrives (valid frames with any arguments, garbage, silence, the button): every
+    line gets an ACK or a NAK, no channel ever exceeds the board's limit, a latched e-stop keeps
+    every channel at 0 until CLR, and a silence past the watchdog leaves every channel at 0."""
+    board = BoardStateMachine(channels=7, max_pressure_bar=2.5)
+    now, last_valid = 0.0, None
+    for step in steps:
+        if step[0] == "frame":
+            _, seq, verb, args = step
+            try:
+                line = encode(seq, verb, *args)
+            except ValueError:
+                continue  # not encodable: the host could not send it either
+            reply = decode(board.receive(line.rstrip(b"\n"), now))
+            assert reply.verb in ("ACK", "NAK")
+            last_valid = now
+        elif step[0] == "bytes":
+            for line in step[1].split(b"\n"):
+                assert decode(board.receive(line, now)).verb in ("ACK", "NAK")
+        elif step[0] == "wait":
+            now += step[1]
+            board.tick(now)
+            if last_valid is not None and now - last_valid > 0.25:
+                assert not board.setpoints_mbar.any(), "the watchdog let a silent link keep pressure"
+        else:
+            board.press_estop(now)
+        assert board.setpoints_mbar.max() <= board.max_mbar
+        if board.estop:
+            assert not board.setpoints_mbar.any()

@@ -228,6 +228,22 @@ def test_bad_channel_maps_are_refused_at_construction(channels, message):
 # --- check(): faults recorded between commands ----------------------------------------------
 
 
+def test_after_a_faulted_close_and_reconnect_unnamed_channels_stay_vented(board, bank):
+    """A partial set-point after a reconnect must not bring back the pressures from before the fault."""
+    bank.set_pressures([1.0] * 7)
+    board.cut_link()
+    assert wait_until(lambda: bank.fault is not None), "the heartbeat never noticed the cut link"
+    with pytest.raises(LinkLostError):
+        bank.close()  # the fault comes out of the vent; the set-points are forgotten all the same
+    assert set(bank.setpoints_bar.values()) == {0.0}
+    board.restore_link()
+    bank.connect()
+    bank.set_pressures({"s1_a": 0.5})
+    assert wait_until(lambda: board.setpoints_bar[0] > 0)
+    np.testing.assert_array_equal(board.setpoints_bar[1:], np.zeros(6))
+    assert bank.setpoints_bar == {name: (0.5 if name == "s1_a" else 0.0) for name in ARM_CHANNELS}
+
+
 def test_check_raises_a_link_lost_between_commands_until_reconnect(board, bank):
     bank.set_pressures([1.0] * 7)
     bank.check()

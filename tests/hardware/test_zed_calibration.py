@@ -99,6 +99,8 @@ def test_missing_distortion_terms_default_to_zero(zed_conf_dir, tmp_path):
     path = variant(zed_conf_dir, tmp_path, lambda t: re.sub(r"^(k2|k3|p1|p2)=.*\n", "", t, flags=re.M))
     calib = load_factory_calibration(path, "HD")
     np.testing.assert_allclose(calib.dist_left, [-0.175995, 0, 0, 0, 0])
+    path = variant(zed_conf_dir, tmp_path, lambda t: re.sub(r"^(k2|k3)=.*$", r"\1=", t, flags=re.M))
+    np.testing.assert_allclose(load_factory_calibration(path, "HD").dist_left, [-0.175995, 0, 0, 0, 0])
 
 
 @pytest.mark.parametrize(("remove", "section", "key"), [
@@ -138,3 +140,60 @@ def test_unknown_resolution_lists_the_allowed_ones(zed_conf_dir):
     with pytest.raises(ValueError, match="2K, FHD, HD, VGA"):
         load_factory_calibration(zed_conf_dir / "SN1010.conf", "4K")
     assert load_factory_calibration(zed_conf_dir / "SN1010.conf", "hd720").image_size == (1280, 720)
+
+
+# --- the conversion against a rig built by hand -------------------------------------------
+
+
+def _axis_rotation(axis: int, angle: float) -> np.ndarray:
+    """Rotation by ``angle`` about the x (0), y (1) or z (2) axis, written out (no Rodrigues)."""
+    c, s = np.cos(angle), np.sin(angle)
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    R = np.eye(3)
+    R[i, i], R[i, j], R[j, i], R[j, j] = c, -s, s, c
+    return R
+
+
+def _hand_rig_conf(path, key: str, angle: float, ty_mm: float, tz_mm: float) -> None:
+    """An HD-only factory file: ideal pinhole eyes, 120 mm baseline, one rotation key set."""
+    eye = "fx=700\nfy=700\ncx=640\ncy=360\n"
+    stereo = {"RX_HD": 0.0, "CV_HD": 0.0, "RZ_HD": 0.0, key: angle}
+    path.write_text(f"[LEFT_CAM_HD]\n{eye}\n[RIGHT_CAM_HD]\n{eye}\n[STEREO]\nBaseline=120\nTY={ty_mm}\nTZ={tz_mm}\n"
+                    + "".join(f"{k}={v}\n" for k, v in stereo.items()))
+
+
+def _project_by_hand(points: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    cam = points @ R.T + t
+    return np.column_stack([700 * cam[:, 0] / cam[:, 2] + 640, 700 * cam[:, 1] / cam[:, 2] + 360])
+
+
+@pytest.mark.parametrize(("key", "axis"), [("RX_HD", 0), ("CV_HD", 1), ("RZ_HD", 2)])
+def test_rotation_keys_and_translation_map_to_the_axes_of_a_hand_built_rig(tmp_path, key, axis):
+    """RX tilts about x, CV converges about y, RZ rolls about z, and (Baseline, TY, TZ) place the
+    right eye in the left frame: a rig built by hand from that reading, with points projected
+    without the calibration, rectifies onto equal rows with the parsed file. The same points
+    projected with the axes swapped do not, so the test tells the readings apart."""
+    angle, ty_mm, tz_mm = 0.02, 1.5, -2.0
+    path = tmp_path / "SN1.conf"
+    _hand_rig_conf(path, key, angle, ty_mm, tz_mm)
+    calib = load_factory_calibration(path, "HD")
+    rng = np.random.default_rng(3)
+    points = np.column_stack([rng.uniform(-0.4, 0.4, 200), rng.uniform(-0.3, 0.3, 200), rng.uniform(0.6, 2.5, 200)])
+    t = -np.array([120.0, ty_mm, tz_mm]) / 1000.0
+    uv_left = _project_by_hand(points, np.eye(3), np.zeros(3))
+    rect = calib.rectification
+
+    def row_mismatch(R_right: np.ndarray) -> float:
+        uv_right = _project_by_hand(points, R_right, t)
+        rows = rect.rectify_points(uv_left, "left")[:, 1] - rect.rectify_points(uv_right, "right")[:, 1]
+        return float(np.max(np.abs(rows)))
+
+    assert row_mismatch(_axis_rotation(axis, angle)) < 0.01
+    for wrong in (_axis_rotation((axis + 1) % 3, angle), _axis_rotation(axis, -angle)):
+        assert row_mismatch(wrong) > 0.5  # another reading of the key leaves a vertical disparity
+    # the right eye sits to the right: positive disparity f B / Z in the rectified pair
+    uv_right = _project_by_hand(points, _axis_rotation(axis, angle), t)
+    disparity = rect.rectify_points(uv_left, "left")[:, 0] - rect.rectify_points(uv_right, "right")[:, 0]
+    depth = rect.from_left_camera(points)[:, 2]
+    np.testing.assert_allclose(disparity, rect.focal_px * rect.baseline_m / depth, rtol=1e-6)
+    assert rect.baseline_m == pytest.approx(np.linalg.norm(t), rel=1e-9)

@@ -112,3 +112,95 @@ def test_greyscale_images_become_three_channel_bgr(tmp_path, calib):
     with ZedCamera(folder, calib) as camera:
         frame = camera.grab()
     assert frame.left.shape == (48, 64, 3) and np.all(frame.left == 77)
+
+
+class FakeUVC:
+    """Stands in for ``cv2.VideoCapture`` on a V4L2 device: records what is requested and reads
+    back what the 'hardware' granted, so the mode checks of the real driver run unchanged."""
+
+    opened: list = []
+
+    def __init__(self, target, backend, *, grants=None, frames=3):
+        self.target, self.backend, self.requests = target, backend, {}
+        self.grants = grants or {}
+        self.frames = frames
+        self.released = False
+        FakeUVC.opened.append(self)
+
+    def isOpened(self):
+        return True
+
+    def set(self, prop, value):
+        self.requests[prop] = value
+        return True
+
+    def get(self, prop):
+        return self.grants.get(prop, self.requests.get(prop, 0.0))
+
+    def read(self):
+        if self.frames == 0:
+            return False, None
+        self.frames -= 1
+        w, h = int(self.get(cv2.CAP_PROP_FRAME_WIDTH)), int(self.get(cv2.CAP_PROP_FRAME_HEIGHT))
+        frame = np.zeros((h, w, 3), np.uint8)
+        frame[:, w // 2:] = 255  # the right eye is white
+        return True, frame
+
+    def getBackendName(self):
+        return "V4L2"
+
+    def release(self):
+        self.released = True
+
+
+@pytest.fixture
+def fake_uvc(monkeypatch):
+    """Install FakeUVC; returns a function setting what the next device grants."""
+    grants = {}
+    FakeUVC.opened = []
+    monkeypatch.setattr("hardware.zed.cv2.VideoCapture", lambda target, backend: FakeUVC(target, backend,
+                                                                                       grants=dict(grants)))
+    return grants
+
+
+def test_device_is_asked_for_the_zed_mode_and_split(zed_conf_dir, fake_uvc):
+    hd = load_factory_calibration(zed_conf_dir / "SN1010.conf", "HD")
+    with ZedCamera(0, hd, resolution="HD", fps=60) as camera:
+        device = FakeUVC.opened[-1]
+        assert device.requests[cv2.CAP_PROP_FRAME_WIDTH] == 2560 and device.requests[cv2.CAP_PROP_FRAME_HEIGHT] == 720
+        assert device.requests[cv2.CAP_PROP_FPS] == 60
+        assert device.requests[cv2.CAP_PROP_FOURCC] == cv2.VideoWriter_fourcc(*"YUYV")
+        assert camera.mode.frame_size == (2560, 720) and camera.mode.fps == 60 and camera.mode.pixel_format == "YUYV"
+        first, second = camera.grab(), camera.grab()
+        assert first.left.shape == first.right.shape == (720, 1280, 3)
+        assert first.left.max() == 0 and first.right.min() == 255  # left eye first, then right
+        assert second.timestamp_s >= first.timestamp_s and (first.index, second.index) == (0, 1)
+        camera.grab()
+        with pytest.raises(DeviceError, match="stopped delivering frames"):
+            camera.grab()
+    assert device.released
+
+
+@pytest.mark.parametrize(("grants", "message"), [
+    ({cv2.CAP_PROP_FRAME_WIDTH: 1344, cv2.CAP_PROP_FRAME_HEIGHT: 376},
+     "fell back to 1344x376 instead of 2560x720 at 60 fps.*USB 3"),
+    ({cv2.CAP_PROP_FPS: 30.0}, "fell back to 30 fps instead of 2560x720 at 60 fps"),
+    ({cv2.CAP_PROP_FOURCC: float(cv2.VideoWriter_fourcc(*"MJPG"))}, "streams MJPG instead of YUYV"),
+])
+def test_a_device_that_falls_back_to_another_mode_is_refused(zed_conf_dir, fake_uvc, grants, message):
+    fake_uvc.update(grants)
+    camera = ZedCamera(0, load_factory_calibration(zed_conf_dir / "SN1010.conf", "HD"), resolution="HD", fps=60)
+    with pytest.raises(DeviceError, match=message):
+        camera.connect()
+    assert not camera.is_connected and FakeUVC.opened[-1].released
+
+
+def test_a_by_id_link_opens_the_device_it_points_at(tmp_path, zed_conf_dir, fake_uvc, monkeypatch):
+    """/dev/v4l/by-id/... names the same camera whatever port it is on; the driver opens its target."""
+    target = tmp_path / "video7"
+    target.write_text("")
+    link = tmp_path / "usb-Stereolabs_ZED-video-index0"
+    link.symlink_to(target)
+    monkeypatch.setattr("hardware.zed._classify", lambda source: ("device", str(source)))
+    with ZedCamera(str(link), load_factory_calibration(zed_conf_dir / "SN1010.conf", "HD"), fps=30):
+        assert FakeUVC.opened[-1].target == str(target)
