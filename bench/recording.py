@@ -312,7 +312,7 @@ def load_run(path: str | Path) -> Run:
     """Read a run folder, finished or killed.
 
     A killed run has no ``summary.json``; the summary is then recomputed from the frames (and
-    marked ``"stopped": "killed (no summary.json)"``).
+    marked ``"stopped": "killed (no summary.json)"``); so is an unreadable one.
 
     Raises:
         RunFolderError: not a run folder.
@@ -330,11 +330,18 @@ def load_run(path: str | Path) -> Run:
     frames, skipped = read_frames(frames_path)
     summary_path = path / SUMMARY_FILE
     complete = summary_path.is_file()
+    summary = None
     if complete:
-        summary = json.loads(summary_path.read_text(encoding="utf-8"))
+        try:
+            summary = json.loads(summary_path.read_text(encoding="utf-8"))
+        except json.JSONDecodeError as e:  # cut short or edited by hand: the frames still hold everything
+            complete = False
+            reason = f"{SUMMARY_FILE} unreadable ({e}); recomputed from the frames"
     else:
+        reason = f"killed (no {SUMMARY_FILE})"
+    if summary is None:
         summary = summarize_run(frames, config)
-        summary["stopped"] = "killed (no summary.json)"
+        summary["stopped"] = reason
     return Run(path, config, frames, summary, complete, skipped)
 
 

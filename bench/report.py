@@ -45,6 +45,9 @@ def report_command(args) -> int:
     except RunFolderError as e:
         print(f"softarm report: {e}", file=sys.stderr)
         return 1
+    except OSError as e:  # the run folder is read-only, the disk is full, ...
+        print(f"softarm report: cannot write the report of {args.run_dir}: {e}", file=sys.stderr)
+        return 1
     print(f"report written to {out}")
     return 0
 

@@ -35,12 +35,14 @@ import numpy as np
 from bench.config import BenchConfig, ConfigError, load_bench_config
 from bench.experiments import make_schedule
 from bench.recording import new_run_folder, write_json
-from estimator import CenterlineEstimator, EstimatorConfig, StereoCalibration
+from bench.run import _stop_errors
+from estimator import CalibrationFileError, CenterlineEstimator, EstimatorConfig, StereoCalibration
 from estimator.centerline import centerline_nodes
 from estimator.config import CENTERLINES
 from estimator.metrics import closest_points_on_polyline, quantization_error, score_against_backbone, topology_error
 from estimator.segmentation import arm_mask, contour_points
 from estimator.som import linear_init, som_online
+from hardware.errors import DeviceError
 
 DEFAULT_FRAMES = 3
 # Table 1 of the paper.
@@ -84,15 +86,30 @@ def study_command(args) -> int:
     which = args.which
     out = Path(args.out) if getattr(args, "out", None) else new_run_folder(config.recording.root,
                                                                             f"study_{which}_{time.strftime('%Y-%m-%d_%H%M%S')}")
-    out.mkdir(parents=True, exist_ok=True)
     print(f"softarm study {which}: rendering {n} twin frames along the experiment ...", flush=True)
-    frames, calibration = twin_frames(config, n)
+    try:
+        frames, calibration = twin_frames(config, n)
+    except (ConfigError, CalibrationFileError, DeviceError, OSError, *_stop_errors()) as e:
+        print(f"softarm study {which}: {e}; nothing written", file=sys.stderr)
+        return 1
     study = som_study if which == "som" else compare_study
-    result = study(frames, calibration, config.estimator_config(), out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        result = study(frames, calibration, config.estimator_config(), out)
+    except NoArmInFramesError as e:
+        print(f"softarm study {which}: {e}", file=sys.stderr)
+        return 1
+    except OSError as e:
+        print(f"softarm study {which}: cannot write the study to {out}: {e}", file=sys.stderr)
+        return 1
     print(f"softarm study {which}: wrote {out}")
     for line in result["headline"]:
         print(line)
     return 0
+
+
+class NoArmInFramesError(ValueError):
+    """None of the study's frames shows the arm (the colour range or the camera is off)."""
 
 
 def twin_frames(config: BenchConfig, count: int) -> tuple[list[StudyFrame], StereoCalibration]:
@@ -140,7 +157,8 @@ def som_study(frames: Sequence[StudyFrame], calibration: StereoCalibration, base
     inputs = [left_samples(f, calibration, cfg) for f in frames]
     samples = [s for _, s, _ in inputs if len(s) >= 3]
     if not samples:
-        raise ValueError("no arm found in the study frames")
+        raise NoArmInFramesError(f"no arm found in any of the {len(frames)} study frames; check the estimator's "
+                                 "hsv_low/hsv_high against the arm's colour and that the camera sees the arm")
     start = time.perf_counter()
     n0, radius0, alpha0 = PAPER_TABLE1["n"], PAPER_TABLE1["N"], PAPER_TABLE1["alpha0"]
 

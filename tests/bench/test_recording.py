@@ -87,6 +87,15 @@ def test_a_killed_run_loads_without_its_cut_short_last_line(written_run):
     assert run.summary["frames"] == 4 and run.summary["valid_frames"] == 3
 
 
+def test_an_unreadable_summary_is_recomputed_from_the_frames(written_run):
+    folder, _, _ = written_run
+    (folder / SUMMARY_FILE).write_text('{"frames": 4, "rmse_')  # cut short (a full disk, an editor)
+    run = load_run(folder)
+    assert not run.complete and len(run.frames) == 4
+    assert run.summary["stopped"].startswith("summary.json unreadable")
+    assert run.summary["frames"] == 4 and run.summary["valid_frames"] == 3
+
+
 def test_jpeg_frames_are_marked_lossy(tmp_path):
     writer = RunWriter(tmp_path / "run", RecordingConfig(lossless_frames=False))
     writer.write_config({})

@@ -61,3 +61,23 @@ def test_random_sequence_commands_the_seeded_levels(tmp_path):
     for f, k in zip(run.frames, [0, 1, 2, 3, 3], strict=True):  # captures at 0, 0.5, 1, 1.5, 2 s
         assert [f["commanded_bar"]["s1_a"], f["commanded_bar"]["s3"]] == pytest.approx(levels[k])
     assert levels.max() > 0 and all(f["commanded_bar"]["s2_a"] == 0.0 for f in run.frames)
+
+
+def test_per_section_sweep_drives_one_channel_at_a_time(tmp_path):
+    config = config_file(tmp_path, """\
+        kind = "sweep"
+        channels = ["s1_a", "s2_a"]
+        max_bar = 1.0
+        step_bar = 0.5
+        duration_s = 2.0
+        frames = 5
+        """)
+    outcome = run_experiment(config, RunOptions(out=tmp_path / "run", report=False, progress=False))
+    assert outcome.exit_code == 0
+    run = load_run(tmp_path / "run")
+    # s1_a rises and falls over the first second while s2_a holds 0; then s2_a does the same
+    commanded = [(f["commanded_bar"]["s1_a"], f["commanded_bar"]["s2_a"]) for f in run.frames]
+    assert commanded == [(0.0, 0.0), (1.0, 0.0), (0.0, 0.0), (0.0, 1.0), (0.0, 0.0)]
+    tips = [np.asarray(f["gt_m"])[-1] for f in run.frames]
+    assert np.linalg.norm(tips[1] - tips[0]) > 0.01 and np.linalg.norm(tips[3] - tips[0]) > 0.01
+    assert all(f["valid"] for f in run.frames)

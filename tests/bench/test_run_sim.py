@@ -20,7 +20,7 @@ from bench.run import RunOptions, run_experiment
 
 FRAMES = 20
 # Targets of the regression, on the paper's ramp (58 s, 0 -> 2.5 bar) captured in 20 frames.
-# Measured on 2026-11-22 (estimator working tree of that day): default mode 20/20 valid, RMSE 3.60 mm,
+# Measured on 2026-11-22 and again on 2026-12-01 (unchanged): default mode 20/20 valid, RMSE 3.60 mm,
 # per axis 1.24 / 1.06 / 3.21 mm, largest point error 23.2 mm, mean tip 8.4 mm, Q' 3.25 / 4.67 / 27.9 mm;
 # paper mode 14/20 valid (the six frames where the arm forms a U come back invalid: the literal
 # compensation matches the wrong branch and the estimate is implausibly long), median per-frame RMSE
@@ -32,8 +32,8 @@ REGRESSION_TARGETS = {
     # offset (and nothing much more); x and y stay small.
     "default_qprime": {"xy_mm_max": (5.0, 6.5), "z_mm_band": (15.0, 40.0)},
     # The paper mode is the reproduction baseline: valid on most frames, clearly worse than the default
-    # mode, within this band.
-    "paper": {"valid_fraction_min": 0.6, "median_rmse_mm_max": 40.0, "rmse_mm_max": 45.0},
+    # mode, within this band; its floor catches a paper mode that stopped reproducing the paper.
+    "paper": {"valid_fraction_min": 0.6, "median_rmse_mm_band": (10.0, 40.0), "rmse_mm_max": 45.0},
 }
 
 
@@ -73,7 +73,8 @@ def test_paper_mode_stays_in_its_band(sim_run):
     figures = {k: paper[k] for k in ("valid_frames", "rmse_mm", "median_rmse_mm", "rmse_xyz_mm")}
     assert paper["frames"] == FRAMES
     assert paper["valid_fraction"] >= t["valid_fraction_min"], figures
-    assert paper["median_rmse_mm"] <= t["median_rmse_mm_max"], figures
+    low, high = t["median_rmse_mm_band"]
+    assert low <= paper["median_rmse_mm"] <= high, figures
     assert paper["rmse_mm"] <= t["rmse_mm_max"], figures
     assert paper["median_rmse_mm"] > s["median_rmse_mm"], "the paper mode should not beat the default mode"
 

@@ -106,3 +106,29 @@ def test_a_twin_instability_stops_the_run_cleanly(tmp_path, monkeypatch):
     assert not devices.camera.is_connected and not devices.valves.is_connected
     np.testing.assert_array_equal(list(devices.valves.setpoints_bar.values()), np.zeros(7))
     assert (tmp_path / "run" / "report" / "summary.md").is_file()  # the frames so far are reported
+
+
+def test_ctrl_c_on_the_twin_stops_vents_and_finishes_the_files(tmp_path):
+    out = tmp_path / "run"
+    config = short_config(tmp_path, frames=200, duration_s=20.0)
+    child = subprocess.Popen([sys.executable, "-m", "bench.cli", "run", "--config", str(config), "--out", str(out)],
+                             cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        lines = 0
+        while time.monotonic() < deadline and lines < 3:
+            time.sleep(0.05)
+            if (out / FRAMES_FILE).is_file():
+                lines = len((out / FRAMES_FILE).read_bytes().splitlines())
+        assert lines >= 3, "the run wrote no frames"
+        child.send_signal(signal.SIGINT)
+        stdout, stderr = child.communicate(timeout=60)
+    finally:
+        if child.poll() is None:
+            child.kill()
+    assert child.returncode == 130, stderr
+    run = load_run(out)
+    assert run.complete and run.summary["stopped"] == "interrupted by SIGINT"
+    assert 3 <= len(run.frames) < 200 and run.skipped_lines == 0
+    assert [f["index"] for f in run.frames] == list(range(len(run.frames)))
+    assert "SIGINT: stopping" in stderr and "report skipped" in stdout

@@ -79,3 +79,25 @@ def test_order_error_counts_steps_backwards():
     forward = np.column_stack([np.zeros(5), [0, 20, 40, 60, 80]])
     assert order_error(forward, curve) == 0.0
     assert order_error(forward[[0, 2, 1, 3, 4]], curve) == 0.25
+
+
+def test_a_study_on_a_missing_twin_file_is_an_error_and_writes_nothing(tmp_path, capsys):
+    config = tmp_path / "bench.toml"
+    config.write_text('backend = "sim"\n[sim]\ntwin = "no_such_twin.toml"\n')
+    out = tmp_path / "study"
+    assert study_command(SimpleNamespace(which="som", config=str(config), frames=2, out=str(out))) == 1
+    err = capsys.readouterr().err
+    assert f"{config.resolve()} [sim] twin:" in err and "twin file not found" in err and "nothing written" in err
+    assert not out.exists()
+
+
+def test_a_study_whose_colour_range_misses_the_arm_says_so(tmp_path, capsys):
+    """An estimator whose HSV range is blue sees no arm in the twin's orange renders."""
+    from pathlib import Path
+
+    models = Path(__file__).resolve().parents[2] / "models"
+    config = tmp_path / "bench.toml"
+    config.write_text(f'backend = "sim"\n[sim]\ntwin = "{models / "twin.toml"}"\n'
+                      '[estimator]\nhsv_low = [100, 100, 50]\nhsv_high = [130, 255, 255]\n')
+    assert study_command(SimpleNamespace(which="som", config=str(config), frames=1, out=str(tmp_path / "s"))) == 1
+    assert "no arm found in any of the 1 study frames" in capsys.readouterr().err
