@@ -48,7 +48,7 @@ from bench.scoring import (
     summary_table,
 )
 from estimator import CalibrationFileError, CenterlineEstimator, EstimateResult, EstimatorConfig
-from hardware.errors import DeviceError, EndOfStreamError
+from hardware.errors import DeviceError, EndOfStreamError, VentedBySignalError
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 _SIGNAL_EXIT = {signal.SIGINT: 130, signal.SIGTERM: 143}
@@ -670,6 +670,8 @@ class _PressureDriver(threading.Thread):
                 if not self._stop_flag.command(self._valves, command, unless=self._finished):
                     return
                 self.sent.append((time.monotonic() - self._t0, command))
+        except VentedBySignalError:
+            return  # SIGINT/SIGTERM vented the valves; the signal's own handler stops the run
         except BaseException as e:  # noqa: BLE001 - handed to the main loop, which stops the run
             self.error = e
             self._stop_flag.request(f"valve fault: {e}")

@@ -77,11 +77,12 @@ def main(argv: list[str] | None = None) -> int:
     config = TwinConfig.load(args.config)
     print(f"machine: {os.cpu_count()} CPUs; OpenGL through EGL (PYOPENGL_PLATFORM={os.environ['PYOPENGL_PLATFORM']})")
     rtf = physics_rtf(config)
-    print(f"physics: {rtf:.1f}x real time (timestep {1000 * config.timestep_s:g} ms)   target >= 10x")
+    print(f"physics: {rtf:.1f}x real time (timestep {1000 * config.timestep_s:g} ms)   target >= 10x: "
+          f"{'met' if rtf >= 10 else 'NOT met'}")
     times = render_times(config, args.frames)
     ms = {key: 1000 * statistics.median(values) for key, values in times.items()}
     print(f"raw stereo pair with left depth: {ms['pair']:.1f} ms median over {args.frames} frames "
-          f"(max {1000 * max(times['pair']):.1f} ms)   target <= 120 ms")
+          f"(max {1000 * max(times['pair']):.1f} ms)   target <= 120 ms: {'met' if ms['pair'] <= 120 else 'NOT met'}")
     print(f"raw stereo pair without depth:   {ms['pair_no_depth']:.1f} ms")
     print(f"per 1280x720 view (pair without depth / 2): {ms['pair_no_depth'] / 2:.1f} ms")
     print(f"  stages of a pair: scene update {ms['scene']:.1f} ms, OpenGL left (+ depth) {ms['gl_left']:.1f} ms, "

@@ -9,6 +9,11 @@ class NotConnectedError(DeviceError):
     """A device was used before ``connect()`` or after ``close()``."""
 
 
+class VentedBySignalError(NotConnectedError):
+    """SIGINT/SIGTERM vented the valves: set-points are refused until the bank is closed and
+    connected again, so a command racing the signal cannot pressurise them again."""
+
+
 class LinkLostError(DeviceError, ConnectionError):
     """A device stopped answering; valves have been vented where possible."""
 

@@ -24,7 +24,14 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import serial
 
-from hardware.errors import BoardReplyError, DeviceError, EStopError, LinkLostError, NotConnectedError
+from hardware.errors import (
+    BoardReplyError,
+    DeviceError,
+    EStopError,
+    LinkLostError,
+    NotConnectedError,
+    VentedBySignalError,
+)
 from hardware.interfaces import ValveBank
 from hardware.protocol import (
     ACK,
@@ -93,6 +100,7 @@ class SerialValveBank(ValveBank):
         self._version: BoardVersion | None = None
         self._status: BoardStatus | None = None
         self._link_dead = False
+        self._vented_by_signal = False  # set by the signal handler's vent; refuses SET until reconnect
         self._fault: DeviceError | None = None  # why set-points are refused until reconnect / clear_estop
         self._fault_reported = True
         self._last_tx = 0.0
@@ -126,6 +134,7 @@ class SerialValveBank(ValveBank):
                               "(a device such as /dev/ttyACM0 or a pyserial URL) and that no other program "
                               "holds it") from e
         self._link_dead, self._fault, self._fault_reported = False, None, True
+        self._vented_by_signal = False
         self._splitter, self._lines = LineSplitter(), collections.deque()
         try:
             self._serial.reset_input_buffer()
@@ -258,6 +267,9 @@ class SerialValveBank(ValveBank):
                     # Checked under the wire lock: close() marks the bank closing before its VENT
                     # takes this lock, so nothing (a SET, a heartbeat, a query) follows the VENT.
                     raise NotConnectedError(f"{self!r}: {verb} refused: the bank is closing")
+                if self._vented_by_signal and verb == "SET":
+                    raise VentedBySignalError(f"{self!r}: SET refused: a signal vented the valves; close() and "
+                                              "connect() again to continue")
                 if refuse_if_faulted:  # checked under the lock: the heartbeat may have just recorded one
                     self._raise_fault()
                 return self._exchange_locked(verb, args, connecting)
@@ -447,9 +459,14 @@ class SerialValveBank(ValveBank):
                     return
 
     def _emergency_vent(self) -> None:
-        """Vent from a signal handler or at exit: a full exchange when possible, else a blind write."""
+        """Vent from a signal handler or at exit: a full exchange when possible, else a blind write.
+
+        From here on SET is refused (``VentedBySignalError``) until ``connect()``: a set-point
+        already past its checks in another thread when the signal landed cannot follow the vent.
+        """
         if self._serial is None:
             return
+        self._vented_by_signal = True
         if self._lock_owner != threading.get_ident() and self._lock.acquire(timeout=0.3):
             try:
                 self._exchange_locked("VENT", (), True)

@@ -11,7 +11,7 @@ circle, a distributed load converges at second order in ``l``, and EI, GJ and EA
 first of the next holds the 3D-printed baseplate, so plates stay flat and rigid. The slide at a
 section's last joint also carries the section's final half element, so each section's axial
 compliance L/EA sits between its own plates. Resolution: 10 links per section (nv = 120) matches
-beam theory to ~0.1 % and runs ~15x real time on 2 cores; 8 would run ~28x at ~0.2 %.
+beam theory to ~0.1 % and runs ~19x real time on 2 cores (benchmarks/twin_physics.py, 2026-12-01).
 
 Each PMA is a fixed tendon over its section's joints whose coefficients are the unit loads of that
 PMA (bending moment direction, axial force per N m, twist per N m); the tendon is pulled by

@@ -15,7 +15,14 @@ import pytest
 import serial
 
 from hardware.emulator import BoardEmulator
-from hardware.errors import BoardReplyError, DeviceError, EStopError, LinkLostError, NotConnectedError
+from hardware.errors import (
+    BoardReplyError,
+    DeviceError,
+    EStopError,
+    LinkLostError,
+    NotConnectedError,
+    VentedBySignalError,
+)
 from hardware.protocol import Frame, LineSplitter, decode
 from hardware.valves import SerialValveBank
 from tests.fakes import ARM_CHANNELS
@@ -242,6 +249,21 @@ def test_after_a_faulted_close_and_reconnect_unnamed_channels_stay_vented(board,
     assert wait_until(lambda: board.setpoints_bar[0] > 0)
     np.testing.assert_array_equal(board.setpoints_bar[1:], np.zeros(6))
     assert bank.setpoints_bar == {name: (0.5 if name == "s1_a" else 0.0) for name in ARM_CHANNELS}
+
+
+def test_after_a_signal_vent_no_set_point_reaches_the_board_until_reconnect(board, bank):
+    """A SET racing SIGINT (already past the caller's checks) must not re-pressurise vented valves."""
+    bank.set_pressures([1.0] * 7)
+    bank._emergency_vent()  # what the SIGINT/SIGTERM handler runs
+    np.testing.assert_array_equal(board.setpoints_bar, np.zeros(7))
+    sets = board.commands["SET"]
+    with pytest.raises(VentedBySignalError, match="a signal vented the valves"):
+        bank.set_pressures([0.5] * 7)
+    assert board.commands["SET"] == sets and not board.setpoints_bar.any()
+    bank.close()
+    bank.connect()
+    bank.set_pressures({"s1_a": 0.5})
+    assert board.setpoints_bar[0] == pytest.approx(0.5, abs=board.lsb_bar)
 
 
 def test_check_raises_a_link_lost_between_commands_until_reconnect(board, bank):
