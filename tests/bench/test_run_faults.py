@@ -6,8 +6,6 @@ the report. Each stops the run cleanly, says why, and the valves' last command i
 
 import json
 import signal
-import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -21,6 +19,7 @@ from bench.report import report_command
 from bench.run import _PressureDriver, _Stop, run_command
 from estimator import CenterlineEstimator
 from hardware.errors import DeviceError
+from tests.bench.child import interrupt_child
 from tests.bench.rigkit import rig_config, run_args
 from tests.fakes import FakeStereoCamera, FakeValveBank
 
@@ -163,19 +162,9 @@ def test_ctrl_c_during_the_report_stops_only_the_report(rig_folder, board, tmp_p
     out = rig_folder / "run"
     started = tmp_path / "report-started"
     config = rig_config(rig_folder, board.port)
-    child = subprocess.Popen([sys.executable, "-c", REPORT_CHILD, str(started), "run", "--config", str(config),
-                              "--out", str(out)], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and not started.exists() and child.poll() is None:
-            time.sleep(0.05)
-        assert started.exists(), child.communicate(timeout=30)
-        child.send_signal(signal.SIGINT)
-        stdout, stderr = child.communicate(timeout=60)
-    finally:
-        if child.poll() is None:
-            child.kill()
-    assert child.returncode == 130, stderr
+    code, stdout, stderr = interrupt_child(["-c", REPORT_CHILD, str(started), "run", "--config", str(config),
+                                            "--out", str(out)], started.exists, timeout_s=60)
+    assert code == 130, stderr
     assert "report interrupted" in stderr and f"softarm report {out}" in stderr
     assert "stopping: venting the valves" not in stderr  # the run's handler was gone: the run had ended
     run = load_run(out)

@@ -7,9 +7,6 @@ SIGTERM vent and finish the files.
 import json
 import os
 import signal
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +15,7 @@ import pytest
 from bench.recording import load_run
 from bench.run import run_command
 from estimator import CenterlineEstimator
+from tests.bench.child import interrupt_child
 from tests.bench.rigkit import rig_config, run_args
 
 REPO = Path(__file__).resolve().parents[2]
@@ -140,20 +138,12 @@ sys.exit(code)
 def test_a_signal_vents_closes_and_finishes_the_files(rig_folder, board, set_commands, signum):
     out = rig_folder / "run"
     config = rig_config(rig_folder, board.port, duration_s=12.0, frames=120, max_bar=2.5, step_bar=0.5)
-    child = subprocess.Popen([sys.executable, "-c", CHILD, "run", "--config", str(config), "--out", str(out)],
-                             cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and not any(s[0] > 0 for s in set_commands):
-            time.sleep(0.05)  # until the valves are pressurised
-        assert any(s[0] > 0 for s in set_commands), "the run never pressurised the valves"
-        assert np.any(board.setpoints_bar > 0)
-        child.send_signal(signum)
-        stdout, stderr = child.communicate(timeout=60)
-    finally:
-        if child.poll() is None:
-            child.kill()
-    assert child.returncode == {signal.SIGINT: 130, signal.SIGTERM: 143}[signum], stderr
+    def pressurised():
+        return any(s[0] > 0 for s in set_commands) and board.setpoints_bar.any()
+
+    code, stdout, stderr = interrupt_child(["-c", CHILD, "run", "--config", str(config), "--out", str(out)],
+                                           pressurised, signum)
+    assert code == {signal.SIGINT: 130, signal.SIGTERM: 143}[signum], stderr
     np.testing.assert_array_equal(board.setpoints_bar, np.zeros(7))
     assert board.events[-1].kind == "vent"
     name = signal.Signals(signum).name

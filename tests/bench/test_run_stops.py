@@ -2,21 +2,17 @@
 ``softarm report`` works on it), and stopped by a twin instability (clean stop, frames kept, vented)."""
 
 import signal
-import subprocess
-import sys
 import textwrap
-import time
 from pathlib import Path
 
 import numpy as np
 
 import bench.factory
 from bench.config import DEFAULT_CONFIG, load_bench_config
-from bench.recording import FRAMES_FILE, load_run
+from bench.recording import load_run
 from bench.report import write_report
 from bench.run import RunOptions, run_experiment
-
-REPO = Path(__file__).resolve().parents[2]
+from tests.bench.child import frames_written, interrupt_child
 
 
 def short_config(folder: Path, frames: int, duration_s: float) -> Path:
@@ -42,22 +38,9 @@ def short_config(folder: Path, frames: int, duration_s: float) -> Path:
 def test_a_killed_run_keeps_its_frames_and_reports(tmp_path):
     out = tmp_path / "run"
     config = short_config(tmp_path, frames=200, duration_s=20.0)
-    child = subprocess.Popen([sys.executable, "-m", "bench.cli", "run", "--config", str(config), "--out", str(out)],
-                             cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        deadline = time.monotonic() + 120
-        lines = 0
-        while time.monotonic() < deadline and lines < 4:
-            time.sleep(0.05)
-            if (out / FRAMES_FILE).is_file():
-                lines = len((out / FRAMES_FILE).read_bytes().splitlines())
-        assert lines >= 4, "the run wrote no frames"
-        child.send_signal(signal.SIGKILL)
-        child.wait(timeout=30)
-    finally:
-        if child.poll() is None:
-            child.kill()
-    assert child.returncode == -signal.SIGKILL
+    code, _, _ = interrupt_child(["-m", "bench.cli", "run", "--config", str(config), "--out", str(out)],
+                                 lambda: frames_written(out) >= 4, signal.SIGKILL)
+    assert code == -signal.SIGKILL
     run = load_run(out)
     assert not run.complete and run.summary["stopped"] == "killed (no summary.json)"
     assert len(run.frames) >= 4 and run.skipped_lines <= 1
@@ -108,25 +91,12 @@ def test_a_twin_instability_stops_the_run_cleanly(tmp_path, monkeypatch):
     assert (tmp_path / "run" / "report" / "summary.md").is_file()  # the frames so far are reported
 
 
-def test_ctrl_c_on_the_twin_stops_vents_and_finishes_the_files(tmp_path):
+def test_ctrl_c_on_the_twin_stops_and_finishes_the_files(tmp_path):
     out = tmp_path / "run"
     config = short_config(tmp_path, frames=200, duration_s=20.0)
-    child = subprocess.Popen([sys.executable, "-m", "bench.cli", "run", "--config", str(config), "--out", str(out)],
-                             cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        deadline = time.monotonic() + 120
-        lines = 0
-        while time.monotonic() < deadline and lines < 3:
-            time.sleep(0.05)
-            if (out / FRAMES_FILE).is_file():
-                lines = len((out / FRAMES_FILE).read_bytes().splitlines())
-        assert lines >= 3, "the run wrote no frames"
-        child.send_signal(signal.SIGINT)
-        stdout, stderr = child.communicate(timeout=60)
-    finally:
-        if child.poll() is None:
-            child.kill()
-    assert child.returncode == 130, stderr
+    code, stdout, stderr = interrupt_child(["-m", "bench.cli", "run", "--config", str(config), "--out", str(out)],
+                                           lambda: frames_written(out) >= 3)
+    assert code == 130, stderr
     run = load_run(out)
     assert run.complete and run.summary["stopped"] == "interrupted by SIGINT"
     assert 3 <= len(run.frames) < 200 and run.skipped_lines == 0
