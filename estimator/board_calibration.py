@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from estimator.calibration import StereoCalibration
+from estimator.calibration import CalibrationValueError, StereoCalibration
 
 _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 100, 1e-4)
 _CALIB_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 200, 1e-12)
@@ -159,8 +159,9 @@ def calibrate_stereo(
         BoardCalibration with the calibration, the RMS and the per-view errors.
 
     Raises:
-        ValueError: fewer than ``min_views`` views show the whole board in both images, or the
-            images are not all the same size.
+        ValueError: fewer than ``min_views`` views show the whole board in both images, the
+            images are not all the same size, or the fitted calibration is implausible (see
+            ``StereoCalibration``; a wrong square size or swapped images show up so).
     """
     if corners is None:
         if views is None:
@@ -193,7 +194,12 @@ def calibrate_stereo(
     )
     rms, K_l, d_l, K_r, d_r, R, T = result[:7]
     per_view = np.asarray(result[-1], dtype=np.float64).reshape(-1, 2)
-    calibration = StereoCalibration(K_l, d_l.ravel()[:5], K_r, d_r.ravel()[:5], R, T.ravel(), size)
+    try:
+        calibration = StereoCalibration(K_l, d_l.ravel()[:5], K_r, d_r.ravel()[:5], R, T.ravel(), size)
+    except CalibrationValueError as e:
+        raise ValueError(f"the calibration fitted to {len(used)} board views is implausible ({e}); check the "
+                         f"board's size ({board.square_m * 1000:g} mm squares) and that the views cover the image, "
+                         "and that the left and right images are not swapped") from e
     return BoardCalibration(calibration, float(rms), per_view, used, float(rms_l), float(rms_r))
 
 

@@ -2,7 +2,12 @@
 
 Conventions (OpenCV): ``K`` is 3x3 in pixels, ``dist`` is (k1, k2, p1, p2, k3) or shorter,
 ``R``, ``T`` map left-camera points to the right camera (``x_r = R x_l + T``, metres) and
-``image_size`` is (width, height). Camera axes: x right, y down, z forward.
+``image_size`` is (width, height). Camera axes: x right, y down, z forward. ``T`` is the left
+camera's centre seen from the right camera, so a right camera to the right of the left one has
+``T_x < 0`` (a 12 cm rig: ``T = (-0.12, 0, 0)``).
+
+A calibration must also look like a real stereo rig (the limits below): a wrong sign or a typo
+otherwise comes out as a confident wrong answer (a flipped T puts the arm behind the camera).
 """
 
 from __future__ import annotations
@@ -22,28 +27,146 @@ _DIST_LENGTHS = (0, 1, 2, 3, 4, 5, 8, 12, 14)
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10)
 
 
+# --- what a real stereo rig looks like -----------------------------------------------------
+# Each side of an image, pixels (the twin's camera.toml uses the same range).
+IMAGE_SIDE_PX = (16, 16384)
+# Focal length over the image side it spans: 0.05 to 6 times is a field of view of about 169 down to
+# 9.5 degrees (fov = 2 atan(side / 2 f)); fx is judged against the width, fy against the height.
+FOCAL_PER_SIDE = (0.05, 6.0)
+# fy / fx: 1 for square pixels; anamorphic lenses squeeze up to 2.
+FOCAL_ASPECT = (0.5, 2.0)
+# Distance between the optical centres, metres (a ZED: 0.12).
+BASELINE_M = (0.01, 1.0)
+# Angle of R, degrees: the eyes of a side-by-side rig are parallel to within a few degrees; even a
+# strongly converging rig turns them by less than this.
+MAX_EYE_ROTATION_DEG = 30.0
+# Angle between the baseline and the left camera's +x axis, degrees: beyond it the pair is not
+# side by side and rectification cannot put corresponding points on the same row.
+MAX_BASELINE_OFF_AXIS_DEG = 45.0
+# |coefficient| limits of OpenCV's distortion model, in the order of ``dist``. Real lenses without
+# a fisheye stay well inside: a factory ZED has k1 = -0.18, k2 = 0.03; calibrations of wide-angle
+# webcams reach k1 ~ -0.5, k2 ~ 2.5 and, poorly constrained, k3 ~ 7; decentring (p1, p2) and thin
+# prism (s1..s4) terms are below 0.01; a tilted sensor (tau_x, tau_y, radians) a few degrees. With
+# the rational model (k4..k6 not all zero) numerator and denominator cancel and k1..k6 grow
+# together (the ZED 2's rational terms reach 14), so they get the wider RATIONAL_K_LIMIT instead.
+DISTORTION_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4", "tau_x", "tau_y")
+DISTORTION_LIMITS = (2.0, 10.0, 0.1, 0.1, 50.0, 100.0, 100.0, 100.0, 0.1, 0.1, 0.1, 0.1, 0.5, 0.5)
+RATIONAL_K_LIMIT = 100.0
+_RADIAL = (0, 1, 4, 5, 6, 7)  # indices of k1..k6 in dist
+
+
 class CalibrationFileError(ValueError):
     """A calibration file is missing, unreadable or has a bad key; the message names both."""
+
+
+class CalibrationValueError(ValueError):
+    """One argument of a StereoCalibration is wrong or implausible.
+
+    Loaders use the parts to name their own key: ``argument`` is the constructor argument
+    (``K_left``, ``dist_right``, ``R``, ``T``, ``image_size``), ``entry`` the element within it
+    (``fx``, ``cy``, ``k1``, ...) or None, and ``problem`` says what is wrong and the expected range
+    (it follows the entry's name: ``"= 7e+307 px is outside ..."`` when there is an entry).
+    """
+
+    def __init__(self, argument: str, problem: str, entry: str | None = None) -> None:
+        self.argument, self.problem, self.entry = argument, problem, entry
+        super().__init__(f"{argument}: {self.detail}")
+
+    @property
+    def detail(self) -> str:
+        """The message without the argument's name."""
+        return self.problem if self.entry is None else f"{self.entry} {self.problem}"
 
 
 def _matrix(value, shape: tuple[int, ...], name: str) -> np.ndarray:
     array = np.asarray(value, dtype=np.float64)
     if array.shape != shape:
-        raise ValueError(f"{name}: expected shape {shape}, got {array.shape}")
+        raise CalibrationValueError(name, f"expected shape {shape}, got {array.shape}")
     if not np.all(np.isfinite(array)):
-        raise ValueError(f"{name}: contains NaN or infinite values")
+        raise CalibrationValueError(name, "contains NaN or infinite values")
     return array
 
 
 def _distortion(value, name: str) -> np.ndarray:
     array = np.asarray(value if value is not None else (), dtype=np.float64).ravel()
     if array.size not in _DIST_LENGTHS:
-        raise ValueError(f"{name}: expected (k1, k2, p1, p2, k3) or shorter, got {array.size} coefficients")
+        raise CalibrationValueError(name, f"expected (k1, k2, p1, p2, k3) or shorter, got {array.size} coefficients")
     if not np.all(np.isfinite(array)):
-        raise ValueError(f"{name}: contains NaN or infinite values")
+        raise CalibrationValueError(name, "contains NaN or infinite values")
+    rational = array.size >= 8 and np.any(array[5:8] != 0)
+    for i, coefficient in enumerate(array):
+        limit = RATIONAL_K_LIMIT if rational and i in _RADIAL else DISTORTION_LIMITS[i]
+        if abs(coefficient) > limit:
+            model = "the rational model" if rational else "a lens without a fisheye"
+            raise CalibrationValueError(name, f"= {coefficient:g} is outside [{-limit:g}, {limit:g}] ({model}; the "
+                                        "limits and why are in estimator/calibration.py)", DISTORTION_NAMES[i])
     if array.size < 5:
         array = np.concatenate([array, np.zeros(5 - array.size)])
     return array
+
+
+def _image_size(value) -> tuple[int, int]:
+    size = tuple(value) if isinstance(value, tuple | list | np.ndarray) else ()
+    lo, hi = IMAGE_SIDE_PX
+    integral = all(isinstance(v, int | np.integer) and not isinstance(v, bool | np.bool_) for v in size)
+    if len(size) != 2 or not integral or not all(lo <= v <= hi for v in size):
+        raise CalibrationValueError("image_size", f"expected (width, height) as two integers in [{lo}, {hi}] px, "
+                                    f"got {value!r}")
+    return int(size[0]), int(size[1])
+
+
+def _intrinsics(K: np.ndarray, name: str, image_size: tuple[int, int]) -> None:
+    """Refuse a camera matrix no real camera of this image size has."""
+    if not np.allclose(K[2], (0, 0, 1)):
+        raise CalibrationValueError(name, "expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]]")
+    lo, hi = FOCAL_PER_SIDE
+    for entry, f, side, axis in (("fx", K[0, 0], image_size[0], "width"), ("fy", K[1, 1], image_size[1], "height")):
+        if not lo * side <= f <= hi * side:
+            fov = [math.degrees(2 * math.atan(1 / (2 * r))) for r in (lo, hi)]
+            raise CalibrationValueError(name, f"= {f:g} px is outside [{lo * side:g}, {hi * side:g}] px ({lo:g} to "
+                                        f"{hi:g} times the image {axis} of {side} px, a field of view of "
+                                        f"{fov[0]:.0f} to {fov[1]:.1f} degrees)", entry)
+    aspect = K[1, 1] / K[0, 0]
+    if not FOCAL_ASPECT[0] <= aspect <= FOCAL_ASPECT[1]:
+        raise CalibrationValueError(name, f"= {K[1, 1]:g} px is {aspect:.3g} times fx = {K[0, 0]:g} px; expected "
+                                    f"{FOCAL_ASPECT[0]:g} to {FOCAL_ASPECT[1]:g} times (pixels are near square)", "fy")
+    for entry, c, side in (("cx", K[0, 2], image_size[0]), ("cy", K[1, 2], image_size[1])):
+        if not -0.5 <= c <= side - 0.5:
+            raise CalibrationValueError(name, f"= {c:g} px is outside the image: expected -0.5 to {side - 0.5:g} px "
+                                        "(the principal point lies in the image)", entry)
+
+
+def _eye_rotation(R: np.ndarray) -> None:
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-5) or np.linalg.det(R) < 0:
+        raise CalibrationValueError("R", "expected a proper rotation matrix (R R^T = I, det R = +1)")
+    angle = math.degrees(math.acos(float(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0))))
+    if angle > MAX_EYE_ROTATION_DEG:
+        raise CalibrationValueError("R", f"turns the right eye by {angle:.1f} degrees against the left; a stereo "
+                                    f"rig's eyes differ by at most {MAX_EYE_ROTATION_DEG:g} degrees")
+
+
+def _baseline(T: np.ndarray, R: np.ndarray) -> None:
+    """Refuse a baseline of implausible length, or one that does not put the right eye on the right."""
+    length = float(np.linalg.norm(T))
+    if length <= 0:
+        raise CalibrationValueError("T", "the baseline is zero")
+    lo, hi = BASELINE_M
+    if not lo <= length <= hi:
+        raise CalibrationValueError("T", f"the baseline |T| = {length:g} m is outside [{lo:g}, {hi:g}] m (T is in "
+                                    "metres)")
+    centre = -R.T @ T  # the right camera's centre in the left camera frame
+    off_axis = math.degrees(math.acos(float(np.clip(centre[0] / length, -1.0, 1.0))))
+    if off_axis >= 180.0 - MAX_BASELINE_OFF_AXIS_DEG:
+        raise CalibrationValueError(
+            "T", f"({T[0]:+.4g}, {T[1]:+.4g}, {T[2]:+.4g}) m puts the right camera {-centre[0]:.4g} m to the LEFT "
+            "of the left camera; with x_right = R x_left + T, T is the left camera's centre seen from the right "
+            "camera, so a right camera to the right of the left one has T_x < 0 (a 12 cm rig: T = (-0.12, 0, 0)); "
+            "flip the sign of T, or swap the left and right images")
+    if off_axis > MAX_BASELINE_OFF_AXIS_DEG:
+        raise CalibrationValueError(
+            "T", f"({T[0]:+.4g}, {T[1]:+.4g}, {T[2]:+.4g}) m puts the right camera {off_axis:.0f} degrees away from "
+            f"the left camera's +x axis (at most {MAX_BASELINE_OFF_AXIS_DEG:g}): the eyes must sit side by side, "
+            "the right one to the right (T_x < 0 with x_right = R x_left + T)")
 
 
 def _frozen(array: np.ndarray) -> np.ndarray:
@@ -56,9 +179,15 @@ def _frozen(array: np.ndarray) -> np.ndarray:
 class StereoCalibration:
     """Intrinsics, distortion and extrinsics of a stereo pair (OpenCV conventions, metres).
 
+    Every argument is checked against what a real stereo rig looks like (the limits at the top of
+    this module): image sides of 16 to 16384 px; fx, fy 0.05 to 6 times the image width, height;
+    the principal point inside the image; bounded distortion; eyes turned by at most 30 degrees;
+    a baseline of 1 cm to 1 m with the right camera to the right (``T_x < 0``).
+
     Raises:
-        ValueError: a matrix has the wrong shape, a non-finite entry, R is not a rotation,
-            the baseline is zero or the image size is not two positive integers.
+        CalibrationValueError: (a ValueError) an argument has the wrong shape or type, a
+            non-finite entry, or an implausible value; the message names the argument, the entry
+            and the expected range.
     """
 
     K_left: np.ndarray
@@ -71,25 +200,19 @@ class StereoCalibration:
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
+        size = _image_size(self.image_size)  # first: the intrinsics are judged against it
+        set_(self, "image_size", size)
         for side in _SIDES:
             K = _matrix(getattr(self, f"K_{side}"), (3, 3), f"K_{side}")
-            if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], (0, 0, 1)):
-                raise ValueError(f"K_{side}: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0")
+            _intrinsics(K, f"K_{side}", size)
             set_(self, f"K_{side}", _frozen(K))
             set_(self, f"dist_{side}", _frozen(_distortion(getattr(self, f"dist_{side}"), f"dist_{side}")))
         R = _matrix(self.R, (3, 3), "R")
-        if not np.allclose(R @ R.T, np.eye(3), atol=1e-5) or np.linalg.det(R) < 0:
-            raise ValueError("R: expected a proper rotation matrix (R R^T = I, det R = +1)")
+        _eye_rotation(R)
         set_(self, "R", _frozen(R))
         T = _matrix(np.asarray(self.T, dtype=np.float64).reshape(-1), (3,), "T")
-        if np.linalg.norm(T) <= 0:
-            raise ValueError("T: the baseline is zero")
+        _baseline(T, R)
         set_(self, "T", _frozen(T))
-        size = tuple(self.image_size) if isinstance(self.image_size, tuple | list | np.ndarray) else ()
-        integral = all(isinstance(v, int | float | np.integer | np.floating) and float(v).is_integer() for v in size)
-        if len(size) != 2 or not integral or min(size) <= 0:
-            raise ValueError(f"image_size: expected (width, height) in pixels, got {self.image_size!r}")
-        set_(self, "image_size", (int(size[0]), int(size[1])))
 
     # --- derived quantities -------------------------------------------------------------
 
@@ -199,8 +322,8 @@ class StereoCalibration:
         """Read a file written by :meth:`save`.
 
         Raises:
-            CalibrationFileError: the file is missing or malformed; the message names the
-                file and the key.
+            CalibrationFileError: the file is missing or malformed, or a value is implausible
+                (see the class); the message names the file, the key and the expected range.
         """
         path = Path(path)
         try:
@@ -221,10 +344,9 @@ class StereoCalibration:
                 raise CalibrationFileError(f"{path}: key {_where(section, key)} is not a numeric array ({e})") from e
         try:
             return cls(**values)
-        except ValueError as e:
-            name, _, reason = str(e).partition(":")
-            section, key = _FILE_KEYS.get(name, (None, name))
-            raise CalibrationFileError(f"{path}: key {_where(section, key)}: {reason.strip()}") from e
+        except CalibrationValueError as e:
+            section, key = _FILE_KEYS[e.argument]
+            raise CalibrationFileError(f"{path}: key {_where(section, key)}: {e.detail}") from e
 
 
 # Constructor field -> (TOML section, key) of the calibration file.

@@ -156,6 +156,8 @@ class CenterlineEstimator:
                 points, uv_left_rect, uv_right_rect = self._reconstruct_nodes(sides, timings)
             else:
                 points, uv_left_rect, uv_right_rect = self._reconstruct_dense(sides, timings)
+            if not np.all(np.isfinite(points)) or np.any(points[:, 2] <= 0):  # never a confident wrong answer
+                raise _NoArmError("points behind the camera (check the baseline sign in the calibration)")
         except _NoArmError as e:
             timings["total"] = (time.perf_counter() - start) * 1e3
             empty2 = np.zeros((0, 2))

@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from estimator import CalibrationFileError, StereoCalibration
+from estimator.calibration import BASELINE_M, MAX_EYE_ROTATION_DEG, CalibrationValueError
 from hardware.errors import DeviceError, EndOfStreamError, NotConnectedError
 from hardware.interfaces import StereoCamera, StereoFrame
 
@@ -30,6 +31,10 @@ ZED_RESOLUTIONS = {"2K": (2208, 1242), "FHD": (1920, 1080), "HD": (1280, 720), "
 ZED_FPS = {"2K": (15,), "FHD": (15, 30), "HD": (15, 30, 60), "VGA": (15, 30, 60, 100)}
 _ALIASES = {"HD2K": "2K", "HD1080": "FHD", "1080": "FHD", "HD720": "HD", "720": "HD"}
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
+# What a factory file may say: the calibration's plausible baseline in the file's millimetres, and
+# its largest eye rotation for each rotation key (radians in the file).
+_BASELINE_MM = (1000.0 * BASELINE_M[0], 1000.0 * BASELINE_M[1])
+_MAX_ROTATION_RAD = math.radians(MAX_EYE_ROTATION_DEG)
 
 
 def resolution_name(resolution: str) -> str:
@@ -57,6 +62,10 @@ def load_factory_calibration(path: str | Path, resolution: str = "HD") -> Stereo
     from ``[STEREO]``: ``R = Rodrigues(RX_<R>, CV_<R>, RZ_<R>)`` and
     ``T = -(Baseline, TY, TZ) / 1000`` metres, TY/TZ read with or without the ``_<R>`` suffix
     and 0 when absent. Keys are case-insensitive; a UTF-8 BOM and spaces around ``=`` are fine.
+    Stereolabs store ``Baseline`` as a positive distance in millimetres and the rotations in
+    radians: a Baseline outside [10, 1000] mm or a rotation key beyond 30 degrees is refused, and so
+    is anything ``StereoCalibration`` finds implausible (a focal length, principal point or
+    distortion no real lens has), each naming the section and key.
 
     Args:
         path: the ``.conf`` file.
@@ -67,7 +76,8 @@ def load_factory_calibration(path: str | Path, resolution: str = "HD") -> Stereo
 
     Raises:
         CalibrationFileError: the file is missing or malformed, or a section or key needed for
-            this resolution is missing or not a number; the message names file, section and key.
+            this resolution is missing, not a number or implausible; the message names file,
+            section and key (and the expected range).
     """
     # Sign conventions, checked against Stereolabs' own OpenCV samples (stereolabs/zed-opencv-native
     # cpp/include/calibration.hpp and python/zed_opencv_native.py; stereolabs/zed-open-capture
@@ -107,6 +117,11 @@ def load_factory_calibration(path: str | Path, resolution: str = "HD") -> Stereo
             raise CalibrationFileError(f"{path}: missing key [{name}] {key} (needed for resolution {res})")
         return default
 
+    def used_key(name: str, key: str, alternatives: tuple[str, ...]) -> str:
+        """Which of the candidate keys the file has (the one ``number`` read), for error messages."""
+        present = [k for k in (key, *alternatives) if k.lower() in sections.get(name, {})]
+        return present[0] if present else key
+
     cameras = {}
     for side in ("LEFT", "RIGHT"):
         name = f"{side}_CAM_{res}"
@@ -114,16 +129,40 @@ def load_factory_calibration(path: str | Path, resolution: str = "HD") -> Stereo
         dist = [number(name, key, 0.0) for key in ("k1", "k2", "p1", "p2", "k3")]
         cameras[side] = (np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]), np.array(dist))
     baseline_mm = number("STEREO", "Baseline")
+    if not _BASELINE_MM[0] <= baseline_mm <= _BASELINE_MM[1]:
+        raise CalibrationFileError(
+            f"{path}: [STEREO] Baseline = {baseline_mm:g} is outside [{_BASELINE_MM[0]:g}, {_BASELINE_MM[1]:g}] "
+            "mm: Stereolabs files store the baseline as a positive distance in millimetres (120 for a ZED)")
     ty_mm = number("STEREO", f"TY_{res}", 0.0, ("TY",))
     tz_mm = number("STEREO", f"TZ_{res}", 0.0, ("TZ",))
-    rotation = np.array([number("STEREO", f"RX_{res}"), number("STEREO", f"CV_{res}"), number("STEREO", f"RZ_{res}")])
+    rotation_keys = (f"RX_{res}", f"CV_{res}", f"RZ_{res}")
+    rotation = np.array([number("STEREO", key) for key in rotation_keys])
+    for key, angle in zip(rotation_keys, rotation, strict=True):
+        if abs(angle) > _MAX_ROTATION_RAD:
+            raise CalibrationFileError(
+                f"{path}: [STEREO] {key} = {angle:g} rad is outside [{-_MAX_ROTATION_RAD:.4g}, "
+                f"{_MAX_ROTATION_RAD:.4g}] rad: Stereolabs store the eye rotation in radians, and a stereo rig's "
+                f"eyes differ by at most {MAX_EYE_ROTATION_DEG:g} degrees")
     R = cv2.Rodrigues(rotation)[0]
+    # Baseline, TY, TZ place the right eye in the left frame; OpenCV's T is minus that (see above).
     T = -np.array([baseline_mm, ty_mm, tz_mm]) / 1000.0 + 0.0  # + 0.0 turns -0.0 into 0.0
     try:
         return StereoCalibration(cameras["LEFT"][0], cameras["LEFT"][1], cameras["RIGHT"][0], cameras["RIGHT"][1],
                                  R, T, ZED_RESOLUTIONS[res])
-    except ValueError as e:
-        raise CalibrationFileError(f"{path}: resolution {res}: {e}") from e
+    except CalibrationValueError as e:
+        if e.argument in ("K_left", "K_right", "dist_left", "dist_right") and e.entry is not None:
+            side = "LEFT" if e.argument.endswith("left") else "RIGHT"
+            where = f"[{side}_CAM_{res}] {e.entry}"
+        elif e.argument == "R":
+            where = f"[STEREO] {', '.join(rotation_keys)}"
+        elif e.argument == "T":
+            ty_key, tz_key = used_key("STEREO", f"TY_{res}", ("TY",)), used_key("STEREO", f"TZ_{res}", ("TZ",))
+            where = (f"[STEREO] Baseline, {ty_key}, {tz_key} (the right eye at ({baseline_mm:g}, {ty_mm:g}, "
+                     f"{tz_mm:g}) mm from the left one)")
+        else:
+            where = f"resolution {res}: {e.argument}"
+        separator = " " if e.entry else ": "  # "[LEFT_CAM_HD] fx = ..." but "[STEREO] RX_HD, ...: turns ..."
+        raise CalibrationFileError(f"{path}: {where}{separator}{e.problem}") from e
 
 
 def _read_ini(path: Path) -> dict[str, dict[str, str]]:

@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 
 from estimator import StereoCalibration
+from estimator.calibration import CalibrationValueError
 
 
 class ConfigFileError(ValueError):
@@ -283,8 +284,8 @@ class StereoRig:
             R = cv2.Rodrigues(rvec)[0]
             calibration = StereoCalibration(eyes["left"][0], eyes["left"][1], eyes["right"][0], eyes["right"][1],
                                             R, T_m, size)
-        except ValueError as e:
-            raise ConfigFileError(f"{path}: {e}") from e
+        except CalibrationValueError as e:  # name this file's key, not the constructor's argument
+            raise _camera_error(path, e) from e
         return cls(calibration, T_world_cam, appearance, sensor, path)
 
     # --- frames ------------------------------------------------------------------------------
@@ -324,6 +325,16 @@ class StereoRig:
     def project_world(self, points_world: np.ndarray, side: str = "left") -> np.ndarray:
         """(N, 3) world points -> (N, 2) raw pixels of one camera (distortion included)."""
         return self.calibration.project(self.world_to_left_camera(points_world), side)
+
+
+def _camera_error(path: Path, error: CalibrationValueError) -> ConfigFileError:
+    """Name the camera.toml key behind a StereoCalibration argument, not the argument."""
+    side = error.argument.rpartition("_")[2]
+    if error.argument.startswith("K_") and error.entry in ("fx", "fy", "cx", "cy"):
+        return ConfigFileError(f"{path}: key [{side}] {error.entry}_px {error.problem}")
+    keys = {"R": "[extrinsics] rotation_mrad", "T": "[extrinsics] T_m", "image_size": "[image] width_px, height_px"}
+    key = f"[{side}] dist" if error.argument.startswith("dist_") else keys.get(error.argument, error.argument)
+    return ConfigFileError(f"{path}: key {key}: {error.detail}")
 
 
 def _points(points: np.ndarray, name: str) -> np.ndarray:

@@ -197,3 +197,56 @@ def test_rotation_keys_and_translation_map_to_the_axes_of_a_hand_built_rig(tmp_p
     depth = rect.from_left_camera(points)[:, 2]
     np.testing.assert_allclose(disparity, rect.focal_px * rect.baseline_m / depth, rtol=1e-6)
     assert rect.baseline_m == pytest.approx(np.linalg.norm(t), rel=1e-9)
+
+
+# --- implausible values (issue 14) ---------------------------------------------------------
+
+
+@pytest.mark.parametrize(("old", "new", "message"), [
+    ("fx=700.895", "fx=7e307", r"\[LEFT_CAM_HD\] fx = 7e\+307 px is outside \[64, 7680\] px"),
+    ("fy=699.05", "fy=0", r"\[RIGHT_CAM_HD\] fy = 0 px is outside \[36, 4320\] px"),
+    ("cx=665.54", "cx=-5000", r"\[LEFT_CAM_HD\] cx = -5000 px is outside the image: expected -0.5 to 1279.5 px"),
+    ("cy=374.974", "cy=7500", r"\[RIGHT_CAM_HD\] cy = 7500 px is outside the image: expected -0.5 to 719.5 px"),
+    ("k1=-0.175995\nk2=0.0265533\nk3=0\np1=0\np2=0\n\n[RIGHT_CAM_HD]",
+     "k1=1e6\nk2=0.0265533\nk3=0\np1=0\np2=0\n\n[RIGHT_CAM_HD]", r"\[LEFT_CAM_HD\] k1 = 1e\+06 is outside \[-2, 2\]"),
+    ("p2=0\n\n[LEFT_CAM_VGA]", "p2=0.5\n\n[LEFT_CAM_VGA]", r"\[RIGHT_CAM_HD\] p2 = 0.5 is outside \[-0.1, 0.1\]"),
+    ("RX_HD=0.00612931", "RX_HD=100", r"\[STEREO\] RX_HD = 100 rad is outside \[-0.5236, 0.5236\] rad"),
+    ("CV_HD=0.006799", "CV_HD=-0.6", r"\[STEREO\] CV_HD = -0.6 rad is outside \[-0.5236, 0.5236\] rad"),
+    ("Baseline=120", "Baseline=-120", r"\[STEREO\] Baseline = -120 is outside \[10, 1000\] mm: Stereolabs files store "
+                                      r"the baseline as a positive distance in millimetres"),
+    ("Baseline=120", "Baseline=0.12", r"\[STEREO\] Baseline = 0.12 is outside \[10, 1000\] mm"),
+    ("Baseline=120", "Baseline=120000", r"\[STEREO\] Baseline = 120000 is outside \[10, 1000\] mm"),
+    ("TY=0", "TY=500", r"\[STEREO\] Baseline, TY, TZ \(the right eye at \(120, 500, 0\) mm from the left one\): .* 77 "
+                       r"degrees away"),
+])
+def test_an_implausible_value_names_the_section_the_key_and_the_range(zed_conf_dir, tmp_path, old, new, message):
+    """Issue 14: such values loaded silently, and a negative Baseline was negated into a reversed T."""
+    path = variant(zed_conf_dir, tmp_path, lambda t: t.replace(old, new, 1))
+    assert path.read_text() != (zed_conf_dir / "SN1010.conf").read_text(), "the edit did not apply"
+    with pytest.raises(CalibrationFileError, match=message) as error:
+        load_factory_calibration(path, "HD")
+    assert str(path) in str(error.value)
+
+
+def test_keys_of_other_resolutions_do_not_matter_for_plausibility(zed_conf_dir, tmp_path):
+    path = variant(zed_conf_dir, tmp_path, lambda t: t.replace("RX_VGA=0.00612931", "RX_VGA=100"))
+    load_factory_calibration(path, "HD")
+    with pytest.raises(CalibrationFileError, match=r"\[STEREO\] RX_VGA = 100 rad"):
+        load_factory_calibration(path, "VGA")
+
+
+def test_rotation_keys_each_in_range_but_too_much_together_name_all_three(zed_conf_dir, tmp_path):
+    path = variant(zed_conf_dir, tmp_path, lambda t: t.replace("CV_HD=0.006799", "CV_HD=0.45")
+                   .replace("RZ_HD=-0.00194124", "RZ_HD=0.45"))
+    with pytest.raises(CalibrationFileError, match=r"\[STEREO\] RX_HD, CV_HD, RZ_HD: turns the right eye by 36\.\d "
+                                                   r"degrees against the left; a stereo rig's eyes differ by at most "
+                                                   r"30"):
+        load_factory_calibration(path, "HD")
+
+
+@pytest.mark.parametrize("name", REAL_FILES)
+def test_every_real_file_puts_the_right_eye_to_the_right(zed_conf_dir, name):
+    """Stereolabs write Baseline positive; OpenCV's T then has T_x < 0 at every resolution."""
+    for resolution in ZED_RESOLUTIONS:
+        calib = load_factory_calibration(zed_conf_dir / name, resolution)
+        assert calib.T[0] < 0 and (-calib.R.T @ calib.T)[0] == pytest.approx(0.12, abs=0.001)

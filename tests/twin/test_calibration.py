@@ -13,7 +13,7 @@ from estimator import StereoCalibration
 from estimator.board_calibration import BoardSpec, calibrate_stereo, compare_calibrations, detect_pair
 from twin.checkerboard import board_corners_left_camera, board_poses, board_prop, render_board_views
 from twin.render import StereoRenderer
-from twin.rig import StereoRig
+from twin.rig import ConfigFileError, StereoRig
 
 REPO = Path(__file__).resolve().parents[2]
 BOARD = BoardSpec(inner_cols=9, inner_rows=6, square_m=0.04)
@@ -121,3 +121,24 @@ def test_the_board_is_flat_geometry_facing_its_z_axis():
     # (cols + 1) x (rows + 1) squares, half of them black (rounded up), four vertices each.
     assert len(black_pos) == 4 * (((BOARD.inner_cols + 1) * (BOARD.inner_rows + 1) + 1) // 2)
     assert white_pos[:, 0].min() < -BOARD.square_m and white_pos[:, 0].max() > BOARD.inner_cols * BOARD.square_m
+
+
+@pytest.mark.parametrize(("edit", "message"), [
+    (lambda t: t.replace("T_m = [-0.12,", "T_m = [0.12,"), r"key \[extrinsics\] T_m: .* to the LEFT .*T_x < 0"),
+    (lambda t: t.replace("fx_px = 699.82", "fx_px = 7e307"),
+     r"key \[left\] fx_px = 7e\+307 px is outside \[64, 7680\]"),
+    (lambda t: t.replace("cx_px = 637.92", "cx_px = -5000.0"), r"key \[right\] cx_px = -5000 px is outside the image"),
+    (lambda t: t.replace("dist = [-0.1712,", "dist = [5.0,"), r"key \[left\] dist: k1 = 5 is outside \[-2, 2\]"),
+    (lambda t: t.replace("rotation_mrad = [1.8, -2.6, 0.9]", "rotation_mrad = [1.8, 600.0, 0.9]"),
+     r"key \[extrinsics\] rotation_mrad: turns the right eye by 34.4 degrees"),
+])
+def test_an_implausible_camera_toml_names_its_own_key(tmp_path, edit, message):
+    """The twin's camera.toml goes through the same plausibility checks as every calibration, and
+    the error names camera.toml's key (fx_px, T_m), not StereoCalibration's argument."""
+    text = (REPO / "models" / "camera.toml").read_text()
+    path = tmp_path / "camera.toml"
+    path.write_text(edit(text))
+    assert path.read_text() != text, "the edit did not apply"
+    with pytest.raises(ConfigFileError, match=message) as info:
+        StereoRig.load(path)
+    assert str(path) in str(info.value)
