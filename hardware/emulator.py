@@ -2,7 +2,8 @@
 
 ``BoardStateMachine`` is what the firmware must do (see ``hardware/PROTOCOL.md``): clamp to its
 own limit, round to its DAC resolution, vent every channel when no valid frame arrived for
-``watchdog_ms``, latch the e-stop until CLR, and answer garbage with NAK instead of crashing.
+``watchdog_ms``, latch the e-stop until CLR, answer garbage with NAK instead of crashing (and
+count it), and carry out a command the host re-sent only once.
 ``BoardEmulator`` serves that state machine on a pty from a thread, so ``SerialValveBank``
 talks to it through a real serial device path::
 
@@ -14,6 +15,7 @@ from __future__ import annotations
 import argparse
 import collections
 import contextlib
+import dataclasses
 import math
 import os
 import select
@@ -30,6 +32,7 @@ import numpy as np
 
 from hardware.protocol import (
     ACK,
+    MAX_COUNT,
     NAK,
     PROTOCOL_VERSION,
     BoardStatus,
@@ -87,8 +90,15 @@ class BoardStateMachine:
         self.frames_received = 0
         self.commands: collections.Counter[str] = collections.Counter()  # intact frames received, by verb
         self.recent_commands: collections.deque[str] = collections.deque(maxlen=256)  # their verbs, in order
+        self.executed: collections.Counter[str] = collections.Counter()  # commands carried out (re-sends not)
+        self.resends = 0  # intact frames identical to the one before: answered again, not carried out
         self.naks_sent = 0
+        self.unreadable_frames = 0  # lines answered with a "?" NAK (reported in the status, stops at MAX_COUNT)
         self.watchdog_trips = 0
+        self.peak_mbar = 0.0  # the highest set-point any channel was ever driven to
+        self._last_frame: Frame | None = None  # the last intact numbered frame, and the reply it got
+        self._last_reply = b""
+        self._wdt_in_last_reply = False  # that reply reported a watchdog vent
         self._handlers = {"VER": self._on_ver, "STAT": self._on_stat, "HB": self._on_stat, "SET": self._on_set,
                           "VENT": self._on_vent, "ESTOP": self._on_estop, "CLR": self._on_clr}
 
@@ -107,29 +117,49 @@ class BoardStateMachine:
 
     def status(self) -> BoardStatus:
         return BoardStatus(self.estop, self._watchdog_unreported,
-                           tuple(round(c * self.lsb_mbar) for c in self._codes))
+                           tuple(round(c * self.lsb_mbar) for c in self._codes), self.unreadable_frames)
 
     # --- inputs ---------------------------------------------------------------------------
 
     def receive(self, line: bytes, now: float) -> bytes:
-        """Handle one received line and return the reply frame (never raises on bad input)."""
+        """Handle one received line and return the reply frame (never raises on bad input).
+
+        An intact frame identical to the previous intact one (same seq, verb and arguments) is the
+        host re-sending a command whose reply it missed: it is not carried out a second time, so a
+        retry never stacks a command on the board, and it is answered again: with the same NAK or
+        version, or with the status as it is now (a vent by the watchdog or the button since the
+        first answer shows at once; a ``wdt=1`` the first answer carried is carried again, since
+        that answer may be the one the host missed).
+        """
         if line == LineSplitter.OVERFLOW:
-            return self._nak(None, "FRAME")
+            return self._unreadable("FRAME")
         try:
             frame = decode(line)
         except ProtocolError as e:
-            return self._nak(None, e.reason)
+            return self._unreadable(e.reason)
         if frame.seq is None:
-            return self._nak(None, "FRAME")
+            return self._unreadable("FRAME")
         self.frames_received += 1
         self.commands[frame.verb] += 1
         self.recent_commands.append(frame.verb)
-        self._deadline = now + self._watchdog_s  # any intact frame feeds the watchdog
+        self._deadline = now + self._watchdog_s  # any intact frame feeds the watchdog, a re-send too
+        if frame == self._last_frame:
+            self.resends += 1
+            if frame.verb == "VER" or decode(self._last_reply).verb == NAK:
+                return self._last_reply
+            return self._ack_status(frame.seq, resend=True)
+        self._wdt_in_last_reply = False
+        reply = self._carry_out(frame, now)
+        self._last_frame, self._last_reply = frame, reply
+        return reply
+
+    def _carry_out(self, frame: Frame, now: float) -> bytes:
         handler = self._handlers.get(frame.verb)
         if handler is None:
             return self._nak(frame.seq, "VERB")
         if frame.verb != "SET" and frame.args:
             return self._nak(frame.seq, "ARGS")
+        self.executed[frame.verb] += 1
         return handler(frame.seq, frame.args, now)
 
     def tick(self, now: float) -> None:
@@ -161,6 +191,7 @@ class BoardStateMachine:
         if self.estop:
             return self._nak(seq, "ESTOP")
         self._codes = [min(round(int(a) / self.lsb_mbar), self._max_code) for a in args]
+        self.peak_mbar = max(self.peak_mbar, max(self._codes) * self.lsb_mbar)
         return self._ack_status(seq)
 
     def _on_vent(self, seq: int, args: tuple[str, ...], now: float) -> bytes:
@@ -183,20 +214,28 @@ class BoardStateMachine:
         self._codes = [0] * self.channels
         self.events.append(BoardEvent(now, "vent", cause))
 
-    def _ack_status(self, seq: int) -> bytes:
-        reply = encode(seq, ACK, *self.status().fields())
-        self._watchdog_unreported = False  # reported once, in this reply
+    def _ack_status(self, seq: int, resend: bool = False) -> bytes:
+        wdt = self._watchdog_unreported or (resend and self._wdt_in_last_reply)
+        reply = encode(seq, ACK, *dataclasses.replace(self.status(), watchdog_tripped=wdt).fields())
+        self._watchdog_unreported = False  # reported once: in this reply (and the answers to its re-sends)
+        self._wdt_in_last_reply = wdt
         return reply
 
     def _nak(self, seq: int | None, reason: str) -> bytes:
         self.naks_sent += 1
         return encode(seq, NAK, reason)
 
+    def _unreadable(self, reason: str) -> bytes:
+        self.unreadable_frames = min(self.unreadable_frames + 1, MAX_COUNT)
+        return self._nak(None, reason)
+
 
 class BoardEmulator:
     """``BoardStateMachine`` served on a pseudo-terminal by a background thread.
 
-    Args: as ``BoardStateMachine``; ``reply_delay_s`` adds a fixed latency to every reply.
+    Args: as ``BoardStateMachine``; ``reply_delay_s`` adds a fixed latency to every reply: each
+    reply leaves that long after its command arrived, while the board keeps reading (the latency
+    of a USB-serial bridge or of a busy firmware loop, not a board that takes that long per command).
 
     Example:
         >>> board = BoardEmulator(channels=7, max_pressure_bar=2.5)
@@ -217,6 +256,8 @@ class BoardEmulator:
         self._fds: tuple[int, int] | None = None
         self._link_up = True
         self._rewrite: Callable[[Frame, Frame], Frame] | None = None
+        self._to_board: Callable[[bytes], bytes] | None = None
+        self._to_host: Callable[[bytes], bytes] | None = None
         self.port: str | None = None
 
     # --- life cycle -----------------------------------------------------------------------
@@ -295,9 +336,33 @@ class BoardEmulator:
             return list(self._board.recent_commands)
 
     @property
+    def executed(self) -> dict[str, int]:
+        """Commands carried out so far, by verb (a re-sent frame the board recognised is not counted again)."""
+        with self._lock:
+            return dict(self._board.executed)
+
+    @property
+    def resends(self) -> int:
+        """Re-sent frames answered without carrying the command out again."""
+        with self._lock:
+            return self._board.resends
+
+    @property
     def naks_sent(self) -> int:
         with self._lock:
             return self._board.naks_sent
+
+    @property
+    def unreadable_frames(self) -> int:
+        """Lines the board could not read (answered with a "?" NAK); the count its status reports."""
+        with self._lock:
+            return self._board.unreadable_frames
+
+    @property
+    def peak_setpoint_bar(self) -> float:
+        """The highest set-point any channel was driven to since the board started, bar."""
+        with self._lock:
+            return self._board.peak_mbar / 1000.0
 
     @property
     def watchdog_trips(self) -> int:
@@ -328,13 +393,25 @@ class BoardEmulator:
         """
         self._rewrite = rewrite
 
+    def distort(self, to_board: Callable[[bytes], bytes] | None = None,
+                to_host: Callable[[bytes], bytes] | None = None) -> None:
+        """Simulate a noisy cable: pass the bytes of each direction through a function.
+
+        ``to_board`` gets every chunk the board reads (any size, frames may be cut anywhere);
+        ``to_host`` gets each reply frame before it is written, so noise it adds in front lands
+        between two frames. ``None`` (the default for both) restores a clean line.
+        """
+        self._to_board, self._to_host = to_board, to_host
+
     # --- serving --------------------------------------------------------------------------
 
     def _serve(self) -> None:
         master = self._fds[0]
         splitter = LineSplitter()
+        outbox: collections.deque[tuple[float, bytes]] = collections.deque()  # (when to send, reply), in order
         while not self._stop.is_set():
-            readable, _, _ = select.select([master], [], [], 0.002)
+            wait_s = 0.002 if not outbox else min(0.002, max(0.0, outbox[0][0] - time.monotonic()))
+            readable, _, _ = select.select([master], [], [], wait_s)
             if readable:
                 try:
                     data = os.read(master, 4096)
@@ -342,23 +419,34 @@ class BoardEmulator:
                     data = b""
                 if not self._link_up:
                     data = b""
+                to_board = self._to_board
+                if to_board is not None and data:
+                    data = to_board(data)
                 for line in splitter.feed(data):
-                    with self._lock:
-                        reply = self._board.receive(line, time.monotonic())
-                    rewrite = self._rewrite
-                    if rewrite is not None:
-                        try:
-                            command = decode(line)
-                        except ProtocolError:
-                            command = Frame(None, "GARBAGE")
-                        answer = rewrite(command, decode(reply))
-                        reply = encode(answer.seq, answer.verb, *answer.args)
-                    if self._reply_delay_s:
-                        time.sleep(self._reply_delay_s)
+                    outbox.append((time.monotonic() + self._reply_delay_s, self._answer(line)))
+            while outbox and outbox[0][0] <= time.monotonic():
+                reply = outbox.popleft()[1]
+                to_host = self._to_host
+                if to_host is not None:
+                    reply = to_host(reply)
+                if self._link_up:
                     with contextlib.suppress(OSError):  # nobody reading: a UART would drop the bytes too
                         os.write(master, reply)
             with self._lock:
                 self._board.tick(time.monotonic())
+
+    def _answer(self, line: bytes) -> bytes:
+        with self._lock:
+            reply = self._board.receive(line, time.monotonic())
+        rewrite = self._rewrite
+        if rewrite is not None:
+            try:
+                command = decode(line)
+            except ProtocolError:
+                command = Frame(None, "GARBAGE")
+            answer = rewrite(command, decode(reply))
+            reply = encode(answer.seq, answer.verb, *answer.args)
+        return reply
 
 
 def main(argv: list[str] | None = None) -> int:

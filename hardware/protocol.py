@@ -23,8 +23,9 @@ DEFAULT_BAUD = 921600  # over a UART; 115200 spends 10.5 ms per SET round trip o
 MAX_FRAME_BYTES = 128  # including "$", "*", the checksum and the line terminator
 SEQ_MODULO = 65536  # sequence numbers count 0..65535 and wrap
 MAX_MBAR = 65535  # widest set-point a SET argument may carry
+MAX_COUNT = 65535  # a board's counters stop here
 
-# Host -> board commands; every one is idempotent, so a retry resends the identical frame.
+# Host -> board commands. A retry re-sends the identical frame; the board carries it out only once.
 HOST_VERBS = ("VER", "STAT", "HB", "SET", "VENT", "ESTOP", "CLR")
 # Board -> host replies.
 ACK, NAK = "ACK", "NAK"
@@ -36,6 +37,7 @@ _VERB = re.compile(rb"[A-Z]{1,8}")
 _ARG = re.compile(rb"[!-#%-)+-~]{1,40}")  # printable ASCII without space, "$" or "*"
 _SEQ = re.compile(rb"0|[1-9][0-9]{0,4}")
 _CRC = re.compile(rb"[0-9A-F]{4}")
+_COUNT = re.compile(rb"0|[1-9][0-9]{0,4}")
 
 
 class ProtocolError(ValueError):
@@ -201,24 +203,32 @@ class BoardStatus:
         estop: the e-stop is latched (all channels vented, SET refused until CLR).
         watchdog_tripped: the watchdog vented the valves since the previous reply.
         setpoints_mbar: the set-point applied on each board channel, millibar.
+        unreadable_frames: lines the board could not read since it started (answered with a
+            ``?`` NAK; stops at 65535), or None when the board does not report it (the optional
+            ``bad=`` field): a count that keeps rising means a noisy cable.
     """
 
     estop: bool
     watchdog_tripped: bool
     setpoints_mbar: tuple[int, ...]
+    unreadable_frames: int | None = None
 
     def fields(self) -> tuple[str, ...]:
         """The ACK arguments carrying this status."""
-        return (f"estop={int(self.estop)}", f"wdt={int(self.watchdog_tripped)}",
-                "mbar=" + ",".join(str(v) for v in self.setpoints_mbar))
+        fields = (f"estop={int(self.estop)}", f"wdt={int(self.watchdog_tripped)}",
+                  "mbar=" + ",".join(str(v) for v in self.setpoints_mbar))
+        return fields if self.unreadable_frames is None else (*fields, f"bad={self.unreadable_frames}")
 
     @classmethod
     def parse(cls, args: Sequence[str]) -> BoardStatus:
         """Read the status from ACK arguments. Raises ``ProtocolError`` (reason "ARGS")."""
         values = _key_values(args, ("estop", "wdt", "mbar"))
         try:
+            bad = values.get("bad")
+            if bad is not None and not (_COUNT.fullmatch(bad.encode()) and int(bad) <= MAX_COUNT):
+                raise ValueError(f"bad={bad!r} is not a count 0..{MAX_COUNT}")
             return cls(_flag(values["estop"]), _flag(values["wdt"]),
-                       tuple(int(v) for v in values["mbar"].split(",")))
+                       tuple(int(v) for v in values["mbar"].split(",")), None if bad is None else int(bad))
         except ValueError as e:
             raise ProtocolError("ARGS", f"bad status fields {' '.join(args)!r}: {e}") from e
 

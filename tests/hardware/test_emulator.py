@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hardware.emulator import BoardEmulator, BoardStateMachine
-from hardware.protocol import BoardStatus, BoardVersion, decode, encode
+from hardware.protocol import MAX_COUNT, BoardStatus, BoardVersion, LineSplitter, checksum, decode, encode
 from tests.hardware.polling import wait_until
 
 
@@ -175,3 +175,75 @@ def test_random_traffic_never_crashes_the_firmware_logic_or_breaks_its_safety(st
         assert board.setpoints_mbar.max() <= board.max_mbar
         if board.estop:
             assert not board.setpoints_mbar.any()
+
+
+# --- re-sent frames, unreadable lines, latency (issue 14) ------------------------------------
+
+
+def test_a_re_sent_frame_is_answered_but_not_carried_out_again(board):
+    first = ask(board, 5, "SET", 1000, 0, 0)
+    board.receive(b"noise between the attempts", 0.0)  # does not make the re-send a new command
+    again = ask(board, 5, "SET", 1000, 0, 0)
+    assert (again.seq, again.verb, again.args[:3]) == (first.seq, first.verb, first.args[:3])
+    assert again.args[3] == "bad=1"  # the status as it is now: the noise line is counted
+    assert board.executed["SET"] == 1 and board.resends == 1
+    assert board.commands["SET"] == 2  # both frames arrived intact
+    ask(board, 6, "SET", 1000, 0, 0)  # the same set-points under a new seq: a new command
+    ask(board, 6, "SET", 2000, 0, 0)  # the same seq with other arguments (a restarted host): a new command
+    assert board.executed["SET"] == 3 and board.resends == 1
+    assert board.setpoints_mbar[0] == pytest.approx(2000, abs=board.lsb_mbar)
+
+
+def test_a_re_send_after_the_watchdog_vented_reports_the_vent_and_does_not_re_pressurise(board):
+    ask(board, 5, "SET", 1000, 1000, 1000, now=0.0)
+    board.tick(0.3)  # the host went silent: vented
+    again = BoardStatus.parse(ask(board, 5, "SET", 1000, 1000, 1000, now=0.31).args)
+    assert again.watchdog_tripped and again.setpoints_mbar == (0, 0, 0)
+    assert not board.setpoints_mbar.any() and board.executed["SET"] == 1
+
+
+def test_a_watchdog_report_is_repeated_to_re_sends_of_the_command_that_carried_it(board):
+    ask(board, 1, "SET", 1000, 0, 0, now=0.0)
+    board.tick(0.3)
+    assert BoardStatus.parse(ask(board, 2, "HB", now=0.4).args).watchdog_tripped
+    assert BoardStatus.parse(ask(board, 2, "HB", now=0.41).args).watchdog_tripped  # the first answer may be lost
+    assert not BoardStatus.parse(ask(board, 3, "HB", now=0.42).args).watchdog_tripped
+
+
+def test_a_re_sent_refused_command_is_refused_again(board):
+    board.press_estop(0.0)
+    assert ask(board, 7, "SET", 1, 1, 1).args == ("ESTOP",)
+    assert ask(board, 7, "SET", 1, 1, 1).args == ("ESTOP",)
+    assert ask(board, 8, "FLY").args == ("VERB",) and ask(board, 8, "FLY").args == ("VERB",)
+    assert board.resends == 2 and not board.setpoints_mbar.any()
+
+
+def test_unreadable_lines_are_counted_in_the_status(board):
+    for line in (b"hello", b"$1 SET 1 2 3*0000", LineSplitter.OVERFLOW, b"$? HB*" + checksum(b"? HB").encode()):
+        assert decode(board.receive(line, 0.0)).seq is None
+    ask(board, 1, "FLY")  # a numbered refusal is not an unreadable frame
+    assert board.unreadable_frames == 4
+    assert BoardStatus.parse(ask(board, 2, "STAT").args).unreadable_frames == 4
+    board.unreadable_frames = MAX_COUNT
+    board.receive(b"more", 0.0)
+    assert BoardStatus.parse(ask(board, 3, "STAT").args).unreadable_frames == MAX_COUNT  # it stops, never wraps
+
+
+def test_the_peak_set_point_is_remembered(board):
+    ask(board, 1, "SET", 2000, 9000, 0)
+    ask(board, 2, "VENT")
+    assert not board.setpoints_mbar.any()
+    assert 2500 - board.lsb_mbar < board.peak_mbar <= 2500
+
+
+def test_a_late_emulator_keeps_reading_while_its_replies_wait():
+    """``reply_delay_s`` is latency, not a board busy for that long: frames are read while replies wait."""
+    with BoardEmulator(channels=2, reply_delay_s=1.0) as board:
+        link = serial.Serial(board.port, timeout=5.0)
+        try:
+            link.write(encode(1, "STAT") + encode(2, "SET", 500, 0) + encode(3, "STAT"))
+            assert wait_until(lambda: board.frames_received == 3)
+            assert link.in_waiting == 0  # no reply leaves before its delay
+            assert [decode(link.readline()).seq for _ in range(3)] == [1, 2, 3]
+        finally:
+            link.close()

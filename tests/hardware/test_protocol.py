@@ -25,6 +25,7 @@ BYTE_TABLE = [
     ((0, "HB", ()), b"$0 HB*C20C\n"),
     ((65535, "VENT", ()), b"$65535 VENT*C7CA\n"),
     ((42, "ACK", ("estop=0", "wdt=1", "mbar=0,2500")), b"$42 ACK estop=0 wdt=1 mbar=0,2500*C72D\n"),
+    ((42, "ACK", ("estop=0", "wdt=0", "mbar=0,2500", "bad=3")), b"$42 ACK estop=0 wdt=0 mbar=0,2500 bad=3*F4C3\n"),
 ]
 
 
@@ -148,3 +149,18 @@ def test_bar_to_mbar_refuses_out_of_range(bar):
 def test_bar_to_mbar_never_exceeds_the_limit(bar, limit):
     if bar <= limit:
         assert 0 <= bar_to_mbar(bar, limit) <= limit * 1000
+
+
+def test_status_carries_the_count_of_unreadable_frames_when_the_board_reports_it():
+    wire = b"$42 ACK estop=0 wdt=0 mbar=0,2500 bad=3*F4C3\n"
+    status = BoardStatus.parse(decode(wire).args)
+    assert status == BoardStatus(False, False, (0, 2500), unreadable_frames=3)
+    assert encode(42, "ACK", *status.fields()) == wire
+    assert BoardStatus.parse(("estop=0", "wdt=0", "mbar=0")).unreadable_frames is None  # an older firmware
+    assert BoardStatus(False, False, (0,)).fields() == ("estop=0", "wdt=0", "mbar=0")
+
+
+@pytest.mark.parametrize("count", ["-1", "x", "01", "65536", "1.5", ""])
+def test_a_count_of_unreadable_frames_that_is_not_a_count_is_a_protocol_error(count):
+    with pytest.raises(ProtocolError, match="bad status fields .* is not a count 0..65535"):
+        BoardStatus.parse(("estop=0", "wdt=0", "mbar=0", f"bad={count}"))
