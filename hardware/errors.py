@@ -32,3 +32,12 @@ class EStopError(DeviceError):
 
 class EndOfStreamError(DeviceError):
     """A recorded camera source (video file or image folder) has no more frames."""
+
+
+class WrongTypeError(TypeError, ValueError):
+    """A value of the wrong kind: a boolean where a number of bar belongs, a string given as a list of
+    pressures, a set whose order is arbitrary.
+
+    A ``TypeError``, and a ``ValueError`` too, so code that reports bad input by catching
+    ``ValueError`` (the bench's configuration and command handlers) reports this as well.
+    """

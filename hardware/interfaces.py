@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import math
+import numbers
 import threading
 from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
@@ -16,9 +17,67 @@ from dataclasses import dataclass
 import numpy as np
 
 from estimator import StereoCalibration
-from hardware.errors import NotConnectedError
+from hardware.errors import NotConnectedError, WrongTypeError
 
 _log = logging.getLogger(__name__)
+
+# clamp=True clamps a set-point at most this fraction of the limit outside [0, limit]: a rounding
+# slip past the limit is clamped, a value in the wrong unit (250000 "bar" meant as pascals) is refused.
+DEFAULT_CLAMP_TOLERANCE = 0.1
+MAX_CLAMP_TOLERANCE = 0.5
+
+
+# --- checks of devices' numeric constructor arguments ----------------------------------------
+# A boolean is refused where a number belongs (float(True) is 1.0: a flag slipped into the wrong
+# argument), and so is anything float() would have to guess at (a string); NaN and infinity are
+# refused before they reach a library that fails on them in its own words (pyserial raises
+# OverflowError for an infinite timeout).
+
+
+def is_real_number(value: object) -> bool:
+    """An int, float or numpy number (not a boolean, not a string, not complex)."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
+
+
+def check_number(name: str, value: object, low: float, high: float, unit: str = "", *,
+                 low_open: bool = False) -> float:
+    """Return ``value`` as a float after checking it is a finite real number in range.
+
+    Args:
+        name: the argument's name, for the message.
+        value: what the caller passed.
+        low, high: the allowed range; ``high`` is inclusive, ``low`` too unless ``low_open``.
+        unit: appended to the range in the message ("bar", "s").
+        low_open: exclude ``low`` itself (a duration or a limit that must be positive).
+
+    Raises:
+        WrongTypeError: ``value`` is a boolean or not a real number.
+        ValueError: NaN, infinite, or outside the range; the message names the argument and the range.
+    """
+    opening, closing = "(" if low_open else "[", ")" if math.isinf(high) else "]"
+    allowed = f"{opening}{low:g}, {high:g}{closing}{' ' + unit if unit else ''}"
+    if not is_real_number(value):
+        kind = "a boolean" if isinstance(value, bool | np.bool_) else f"a {type(value).__name__}"
+        raise WrongTypeError(f"{name}: expected a number in {allowed}, got {value!r} ({kind})")
+    number = float(value)
+    if not math.isfinite(number) or number < low or number > high or (low_open and number == low):
+        raise ValueError(f"{name}: expected a finite number in {allowed}, got {value!r}")
+    return number
+
+
+def check_integer(name: str, value: object, low: int, high: int) -> int:
+    """Return ``value`` as an int after checking it is an integer (not a boolean) in ``[low, high]``.
+
+    Raises:
+        WrongTypeError: a boolean, a float (even a whole one: ``retries=2.0`` is a slip), or not a number.
+        ValueError: outside the range; the message names the argument and the range.
+    """
+    if isinstance(value, bool | np.bool_) or not isinstance(value, numbers.Integral):
+        raise WrongTypeError(f"{name}: expected an integer in [{low}, {high}], got {value!r} "
+                             f"(a {'boolean' if isinstance(value, bool | np.bool_) else type(value).__name__})")
+    if not low <= int(value) <= high:
+        raise ValueError(f"{name}: expected an integer in [{low}, {high}], got {value!r}")
+    return int(value)
 
 
 @dataclass(frozen=True, eq=False)
@@ -79,7 +138,8 @@ class ValveBank(ABC):
 
     The contract:
 
-    - ``connect()``; ``set_pressures(...)`` by name or in channel order; ``vent()``;
+    - ``connect()``; ``set_pressures(...)`` by name (a mapping) or in channel order (a list, a
+      tuple or a 1-D array; never a string, a set or an iterator); ``vent()``;
       ``close()`` (vents, then releases; closing twice is harmless); ``with bank:`` closes on exit,
       so the valves are vented even when the block raises.
     - ``check()`` raises the fault the device recorded in the background (a link lost between
@@ -87,6 +147,10 @@ class ValveBank(ABC):
       subclass, on every call until the fault is cleared; it does nothing when all is well. A control loop
       calls it once per frame so a fault stops the experiment even while no set-point changes.
       Devices that cannot fail in the background (the twin, the fakes) inherit the no-op.
+    - Set-points outside [0, ``max_pressure_bar``] raise ``ValueError`` naming the channel; with
+      ``clamp=True`` those within ``clamp_tolerance`` of the range (a fraction of the limit,
+      default 10 %) are clamped with a warning instead. NaN, infinity and booleans are refused
+      whatever the setting.
     - Once ``close()`` has started, ``set_pressures()`` in any thread raises
       ``NotConnectedError``; ``close()`` waits for a ``set_pressures()`` already under way (which
       completes, or raises ``NotConnectedError`` if the device refuses commands once closing)
@@ -96,14 +160,34 @@ class ValveBank(ABC):
     # How long close() waits for a set_pressures() under way before venting regardless.
     _CLOSE_WAIT_S = 5.0
 
-    def __init__(self, channels: Sequence[str], max_pressure_bar: float, clamp: bool = False) -> None:
+    def __init__(self, channels: Sequence[str], max_pressure_bar: float, clamp: bool = False,
+                 clamp_tolerance: float = DEFAULT_CLAMP_TOLERANCE) -> None:
+        """
+        Args:
+            channels: unique valve names, in command order.
+            max_pressure_bar: the host-side limit on every channel, bar, finite and above 0.
+            clamp: clamp slightly out-of-range set-points (with a warning) instead of raising.
+            clamp_tolerance: how far outside [0, max_pressure_bar] ``clamp`` reaches, as a
+                fraction of max_pressure_bar in [0, 0.5].
+
+        Raises:
+            WrongTypeError (a ``TypeError`` and a ``ValueError``): an argument of the wrong type
+                (``max_pressure_bar=True``, ``clamp=1``).
+            ValueError: duplicate or empty channel names, or a number outside its range; the
+                message names the argument and the range.
+        """
+        if isinstance(channels, str | bytes) or not isinstance(channels, Sequence):
+            raise WrongTypeError(f"channels: expected a list of valve names, got {channels!r}")
         channels = tuple(channels)
-        if not channels or len(set(channels)) != len(channels):
+        if not channels or not all(isinstance(c, str) and c for c in channels) or len(set(channels)) != len(channels):
             raise ValueError(f"channels: expected unique names, got {channels!r}")
-        if not (math.isfinite(max_pressure_bar) and max_pressure_bar > 0):
-            raise ValueError(f"max_pressure_bar: expected a positive number, got {max_pressure_bar!r}")
+        self._max_pressure_bar = check_number("max_pressure_bar", max_pressure_bar, 0.0, math.inf, "bar",
+                                              low_open=True)
+        if not isinstance(clamp, bool | np.bool_):
+            raise WrongTypeError(f"clamp: expected True or False, got {clamp!r}")
+        self._clamp_tolerance = check_number("clamp_tolerance", clamp_tolerance, 0.0, MAX_CLAMP_TOLERANCE,
+                                             "(a fraction of max_pressure_bar)")
         self._channels = channels
-        self._max_pressure_bar = float(max_pressure_bar)
         self._clamp = bool(clamp)
         self._setpoints_bar = np.zeros(len(channels))
         # close() against set_pressures() from other threads: _state guards the two fields below;
@@ -146,48 +230,91 @@ class ValveBank(ABC):
     def _disconnect(self) -> None:
         """Release the link (called after venting)."""
 
+    @property
+    def clamp_tolerance_bar(self) -> float:
+        """How far outside [0, max_pressure_bar] a set-point may be and still be clamped (``clamp=True``)."""
+        return self._clamp_tolerance * self._max_pressure_bar
+
     def validated(self, pressures: Mapping[str, float] | Sequence[float]) -> np.ndarray:
         """Check set-points and return them in channel order, unnamed channels unchanged.
 
-        Clamping (``clamp=True``) is for slightly out-of-range numbers: a boolean, NaN or an
-        infinite value is refused whatever the setting.
+        ``pressures`` is a mapping channel name -> bar, or one number per channel in channel
+        order as a list, a tuple or a 1-D numpy array. Anything whose order is arbitrary (a set,
+        a dict's keys or values), anything consumed by reading it (an iterator, a generator) and a
+        string (``"2222222"`` is seven characters, not seven pressures) is refused.
+
+        Clamping (``clamp=True``) is for slightly out-of-range numbers: within ``clamp_tolerance``
+        (a fraction of ``max_pressure_bar``) of the range. A value further out is a mistake, not a
+        rounding slip (pascals typed as bar), and is refused whatever the setting, as is a NaN or
+        an infinite value.
 
         Raises:
-            ValueError: an unknown channel, a wrong count, a boolean, a value that is NaN or
-                infinite, or one that is negative or above ``max_pressure_bar`` (unless the bank
-                clamps); the message names the channel.
+            WrongTypeError (a ``TypeError`` and a ``ValueError``): ``pressures`` is not a mapping or
+                a sequence in channel order, or a value is a boolean, a string or not a number; the
+                message names the channel.
+            ValueError: an unknown channel, a wrong count, an array that is not 1-D, a value that is
+                NaN or infinite, or one that is negative or above ``max_pressure_bar`` (beyond the
+                clamping tolerance, when the bank clamps); the message names the channel.
         """
         out = self._setpoints_bar.copy()
+        for name, value in self._named_values(pressures):
+            out[self._channels.index(name)] = self._checked_bar(name, value)
+        return out
+
+    def _named_values(self, pressures: object) -> list[tuple[str, object]]:
+        """Pair each value with its channel name; refuse containers whose meaning or order is a guess."""
+        names = ", ".join(self._channels)
+        order = f"a mapping channel -> bar, or {len(self._channels)} numbers in channel order ({names})"
         if isinstance(pressures, Mapping):
             items = list(pressures.items())
             for name, _ in items:
                 if name not in self._channels:
                     raise ValueError(f"unknown valve channel {name!r}; channels are {', '.join(self._channels)}")
-        else:
+            return items
+        if isinstance(pressures, np.ndarray):
+            if pressures.ndim != 1:
+                raise ValueError(f"pressures: expected {order}, got an array of shape {pressures.shape}")
+            values = pressures.tolist()  # numpy scalars become Python numbers (np.bool_ becomes bool)
+        elif isinstance(pressures, str | bytes | bytearray | memoryview):
+            raise WrongTypeError(f"pressures: expected {order}, got {pressures!r}: a {type(pressures).__name__} "
+                                 "is not a list of pressures")
+        elif isinstance(pressures, bool | np.bool_):
+            raise WrongTypeError(f"pressures: expected {order}, got {pressures!r} (a boolean)")
+        elif isinstance(pressures, Sequence):
             values = list(pressures)
-            if len(values) != len(self._channels):
-                raise ValueError(f"expected {len(self._channels)} pressures in channel order "
-                                 f"({', '.join(self._channels)}), got {len(values)}")
-            items = list(zip(self._channels, values, strict=True))
-        for name, value in items:
-            if isinstance(value, bool | np.bool_):  # float(True) == 1.0: a flag slipped into the command
-                raise ValueError(f"channel {name}: pressure {value} is a boolean, not a number of bar")
-            try:
-                bar = float(value)
-            except (TypeError, ValueError) as e:
-                raise ValueError(f"channel {name}: pressure {value!r} is not a number") from e
-            if math.isnan(bar):
-                raise ValueError(f"channel {name}: pressure is NaN")
-            if math.isinf(bar):
-                raise ValueError(f"channel {name}: pressure {bar} is not finite")
-            if bar < 0 or bar > self._max_pressure_bar:
-                if not self._clamp:
-                    raise ValueError(f"channel {name}: {bar} bar is outside [0, {self._max_pressure_bar}] bar")
-                clamped = min(max(bar, 0.0), self._max_pressure_bar)
-                _log.warning("channel %s: %s bar clamped to %s bar", name, bar, clamped)
-                bar = clamped
-            out[self._channels.index(name)] = bar
-        return out
+        else:  # a set (arbitrary order), a dict view, an iterator or generator, a single number, None ...
+            raise WrongTypeError(f"pressures: expected {order}, got a {type(pressures).__name__}; a set or a "
+                                 "dict's keys/values have no channel order and an iterator is used up by "
+                                 "reading it: pass a dict, a list, a tuple or a 1-D array")
+        if len(values) != len(self._channels):
+            raise ValueError(f"expected {len(self._channels)} pressures in channel order ({names}), got {len(values)}")
+        return list(zip(self._channels, values, strict=True))
+
+    def _checked_bar(self, name: str, value: object) -> float:
+        """One set-point as a float in [0, max_pressure_bar], clamped within the tolerance if the bank clamps."""
+        if isinstance(value, bool | np.bool_):  # float(True) == 1.0: a flag slipped into the command
+            raise WrongTypeError(f"channel {name}: pressure {value} is a boolean, not a number of bar")
+        if not is_real_number(value):
+            raise WrongTypeError(f"channel {name}: pressure {value!r} is not a number of bar "
+                                 f"(a {type(value).__name__})")
+        bar = float(value)
+        if math.isnan(bar):
+            raise ValueError(f"channel {name}: pressure is NaN")
+        if math.isinf(bar):
+            raise ValueError(f"channel {name}: pressure {bar} is not finite")
+        limit = self._max_pressure_bar
+        if 0.0 <= bar <= limit:
+            return bar
+        if not self._clamp:
+            raise ValueError(f"channel {name}: {bar} bar is outside [0, {limit}] bar")
+        margin = self.clamp_tolerance_bar
+        if not -margin <= bar <= limit + margin:
+            raise ValueError(f"channel {name}: {bar} bar is outside [0, {limit}] bar by more than the clamping "
+                             f"tolerance of {margin:g} bar ({self._clamp_tolerance:.0%} of the limit): refused, not "
+                             "clamped; is it in the wrong unit?")
+        clamped = min(max(bar, 0.0), limit)
+        _log.warning("channel %s: %s bar clamped to %s bar", name, bar, clamped)
+        return clamped
 
     def set_pressures(self, pressures: Mapping[str, float] | Sequence[float]) -> None:
         """Command set-points by channel name (others keep theirs) or for all channels in order.

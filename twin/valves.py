@@ -5,24 +5,28 @@ from __future__ import annotations
 import numpy as np
 
 from hardware.errors import DeviceError
-from hardware.interfaces import ValveBank
+from hardware.interfaces import DEFAULT_CLAMP_TOLERANCE, ValveBank
 from twin.physics import ArmSimulation
 
 
 class SimValveBank(ValveBank):
     """Proportional valves of the twin: set-points become the simulation's commanded pressures.
 
-    The base class validates every set-point (unknown channel, NaN, outside [0, max] -> ValueError
-    naming the channel, or clamped when ``clamp=True``); the chamber pressures then follow with the
-    valve lag of the arm's parameters as the simulation advances. Closing vents all channels.
+    The base class validates every set-point exactly as for the real board (unknown channel, NaN,
+    outside [0, max] -> ValueError naming the channel, clamped when ``clamp=True`` only within
+    ``clamp_tolerance``; a string, a set or a boolean -> WrongTypeError); the chamber pressures then
+    follow with the valve lag of the arm's parameters as the simulation advances. Closing vents all
+    channels.
 
     Args:
         sim: the simulation to drive; its channels and maximum pressure define the bank's.
-        clamp: clamp out-of-range set-points (logged) instead of raising.
+        clamp: clamp slightly out-of-range set-points (logged) instead of raising.
+        clamp_tolerance: how far out of range ``clamp`` reaches, a fraction of the maximum pressure.
     """
 
-    def __init__(self, sim: ArmSimulation, clamp: bool = False) -> None:
-        super().__init__(sim.channels, sim.max_pressure_bar, clamp=clamp)
+    def __init__(self, sim: ArmSimulation, clamp: bool = False,
+                 clamp_tolerance: float = DEFAULT_CLAMP_TOLERANCE) -> None:
+        super().__init__(sim.channels, sim.max_pressure_bar, clamp=clamp, clamp_tolerance=clamp_tolerance)
         self._sim = sim
         self._connected = False
 

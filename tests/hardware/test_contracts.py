@@ -3,7 +3,8 @@
 To add an implementation (the twin's ``SimStereoCamera``/``SimValveBank``, a new board), write
 a fixture below that returns it *unconnected* and append the fixture's name to
 ``CAMERA_FIXTURES`` or ``VALVE_FIXTURES``. A valve fixture returns a ``ValvesUnderTest`` so the
-suite can see what the device itself drives, not just what the bank believes.
+suite can see what the device itself drives, not just what the bank believes, and how to build
+the same kind of bank with clamping on.
 """
 
 import contextlib
@@ -16,7 +17,7 @@ import numpy as np
 import pytest
 
 from hardware.emulator import BoardEmulator
-from hardware.errors import DeviceError, NotConnectedError
+from hardware.errors import DeviceError, NotConnectedError, WrongTypeError
 from hardware.interfaces import StereoCamera, StereoFrame, ValveBank
 from hardware.valves import SerialValveBank
 from hardware.zed import ZedCamera
@@ -38,11 +39,13 @@ VALVE_FIXTURES = ["serial_valve_bank", "fake_valve_bank", "twin_valve_bank"]
 
 @dataclass
 class ValvesUnderTest:
-    """A bank, and what its device actually drives (bar, in the bank's channel order)."""
+    """A bank, what its device actually drives (bar, in the bank's channel order), and a builder of
+    the same kind of bank (unconnected) with ``clamp=True``, on the same device."""
 
     bank: ValveBank
     driven_bar: Callable[[], np.ndarray]
     tolerance_bar: float = 1e-9
+    clamping: Callable[[], "ValvesUnderTest"] | None = None
 
 
 # --- camera implementations ---------------------------------------------------------------
@@ -93,15 +96,22 @@ def twin_camera(twin_parts):
 def serial_valve_bank():
     with BoardEmulator(channels=7, max_pressure_bar=2.5) as board:
         # a generous reply timeout: a loaded machine must not turn a slow reply into a lost link
-        bank = SerialValveBank(board.port, ARM_CHANNELS, max_pressure_bar=2.5, reply_timeout_s=0.5)
-        yield ValvesUnderTest(bank, lambda: board.setpoints_bar, board.lsb_bar)
-        bank.close()
+        def build(clamp: bool) -> ValvesUnderTest:
+            bank = SerialValveBank(board.port, ARM_CHANNELS, max_pressure_bar=2.5, reply_timeout_s=0.5, clamp=clamp)
+            return ValvesUnderTest(bank, lambda: board.setpoints_bar, board.lsb_bar, lambda: build(True))
+
+        valves = build(False)
+        yield valves
+        valves.bank.close()
 
 
 @pytest.fixture
 def fake_valve_bank():
-    bank = FakeValveBank(ARM_CHANNELS, max_pressure_bar=2.5)
-    return ValvesUnderTest(bank, lambda: bank.applied_bar)
+    def build(clamp: bool) -> ValvesUnderTest:
+        bank = FakeValveBank(ARM_CHANNELS, max_pressure_bar=2.5, clamp=clamp)
+        return ValvesUnderTest(bank, lambda: bank.applied_bar, clamping=lambda: build(True))
+
+    return build(False)
 
 
 @pytest.fixture
@@ -110,8 +120,8 @@ def twin_valve_bank(twin_parts):
 
     sim, _ = twin_parts
     sim.reset()
-    bank = SimValveBank(sim)
-    return ValvesUnderTest(bank, lambda: sim.commanded_bar)
+    return ValvesUnderTest(SimValveBank(sim), lambda: sim.commanded_bar,
+                           clamping=lambda: ValvesUnderTest(SimValveBank(sim, clamp=True), lambda: sim.commanded_bar))
 
 
 # --- the suite ----------------------------------------------------------------------------
@@ -314,3 +324,137 @@ def test_valves_refuse_booleans_and_infinities_even_when_clamping(value, clamp):
 def test_valves_clamping_still_clamps_finite_numbers():
     bank = FakeValveBank(ARM_CHANNELS, max_pressure_bar=2.5, clamp=True)
     np.testing.assert_array_equal(bank.validated({"s1_a": 2.6, "s1_b": -0.1, "s1_c": 1})[:3], [2.5, 0.0, 1.0])
+
+
+# --- what set_pressures() accepts (issue 14): the same on every implementation -----------------
+
+
+def _generator():
+    yield from [1.0] * len(ARM_CHANNELS)
+
+
+ACCEPTED_FORMS = {  # each sets s1_a and s3 and leaves the others at 0 bar
+    "dict": lambda: {"s1_a": 0.5, "s3": 2},
+    "list": lambda: [0.5, 0, 0, 0, 0, 0, 2.0],
+    "tuple": lambda: (0.5, 0, 0, 0, 0, 0, 2),
+    "1-D float array": lambda: np.array([0.5, 0, 0, 0, 0, 0, 2.0]),
+    "1-D float32 array": lambda: np.array([0.5, 0, 0, 0, 0, 0, 2.0], dtype=np.float32),
+    "numpy scalars": lambda: [np.float32(0.5), np.int64(0), 0, 0, 0, 0, np.int32(2)],
+}
+
+
+@pytest.mark.parametrize("form", ACCEPTED_FORMS.values(), ids=ACCEPTED_FORMS.keys())
+def test_valves_take_a_mapping_or_a_sequence_in_channel_order(valves, form):
+    bank = valves.bank
+    bank.connect()
+    bank.set_pressures(form())
+    expected = np.zeros(len(bank.channels))
+    expected[0], expected[6] = 0.5, 2.0
+    np.testing.assert_allclose(valves.driven_bar(), expected, atol=valves.tolerance_bar)
+    bank.set_pressures(np.array([1, 0, 0, 0, 0, 0, 2]))  # an integer array
+    expected[0] = 1.0
+    np.testing.assert_allclose(valves.driven_bar(), expected, atol=valves.tolerance_bar)
+
+
+REFUSED_FORMS = {
+    "a string": (lambda: "2222222", "a str is not a list of pressures"),
+    "bytes": (lambda: b"2222222", "a bytes is not a list of pressures"),
+    "a bytearray": (lambda: bytearray(b"2222222"), "a bytearray is not a list of pressures"),
+    "a set": (lambda: {0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7}, "got a set; a set .* no channel order"),
+    "a frozenset": (lambda: frozenset({0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7}), "got a frozenset"),
+    "dict values": (lambda: dict.fromkeys(ARM_CHANNELS, 1.0).values(), "got a dict_values"),
+    "dict keys": (lambda: dict.fromkeys(ARM_CHANNELS, 1.0).keys(), "got a dict_keys"),
+    "an iterator": (lambda: iter([1.0] * len(ARM_CHANNELS)), "got a list_iterator; .* an iterator is used up"),
+    "a generator": (_generator, "got a generator"),
+    "a boolean": (lambda: True, r"got True \(a boolean\)"),
+    "a number": (lambda: 2.0, "got a float"),
+    "None": (lambda: None, "got a NoneType"),
+}
+
+
+@pytest.mark.parametrize(("form", "message"), REFUSED_FORMS.values(), ids=REFUSED_FORMS.keys())
+def test_valves_refuse_containers_whose_meaning_or_order_is_a_guess(valves, form, message):
+    bank = valves.bank
+    bank.connect()
+    bank.set_pressures({"s1_a": 1.0})
+    before = valves.driven_bar().copy()
+    with pytest.raises(TypeError, match=f"pressures: expected a mapping channel -> bar, or 7 numbers in channel "
+                                        f"order .*{message}") as error:
+        bank.set_pressures(form())
+    assert isinstance(error.value, WrongTypeError) and isinstance(error.value, ValueError)
+    np.testing.assert_array_equal(valves.driven_bar(), before)
+    assert bank.setpoints_bar["s1_a"] == 1.0 and bank.setpoints_bar["s1_b"] == 0.0
+
+
+@pytest.mark.parametrize(("form", "message"), [
+    (lambda: np.full((1, 7), 1.0), r"an array of shape \(1, 7\)"),
+    (lambda: np.array(1.0), r"an array of shape \(\)"),
+    (lambda: [1.0] * 6, "expected 7 pressures in channel order"),
+])
+def test_valves_refuse_arrays_that_are_not_one_row_of_pressures(valves, form, message):
+    valves.bank.connect()
+    with pytest.raises(ValueError, match=message):
+        valves.bank.set_pressures(form())
+    assert not valves.driven_bar().any()
+
+
+@pytest.mark.parametrize(("value", "message"), [
+    ("2", r"channel s1_b: pressure '2' is not a number of bar \(a str\)"),
+    (b"2", r"channel s1_b: pressure b'2' is not a number of bar \(a bytes\)"),
+    (None, r"channel s1_b: pressure None is not a number of bar"),
+    (1 + 0j, r"channel s1_b: pressure \(1\+0j\) is not a number of bar \(a complex\)"),
+    (np.True_, "channel s1_b: pressure True is a boolean"),
+])
+def test_valves_refuse_values_that_are_not_numbers_naming_the_channel(valves, value, message):
+    bank = valves.bank
+    bank.connect()
+    for command in ({"s1_b": value}, [0.5, value, 0.5, 0.5, 0.5, 0.5, 0.5]):
+        with pytest.raises(TypeError, match=message):
+            bank.set_pressures(command)
+    assert not valves.driven_bar().any()
+
+
+def test_valves_refuse_a_boolean_array():
+    bank = FakeValveBank(ARM_CHANNELS, max_pressure_bar=2.5)
+    bank.connect()
+    with pytest.raises(TypeError, match="channel s1_a: pressure True is a boolean"):
+        bank.set_pressures(np.ones(7, dtype=bool))
+    assert bank.history == []
+
+
+def test_valves_clamp_only_within_the_tolerance(valves):
+    """clamp=True is for rounding slips: within 10 % of the 2.5 bar limit. Pascals typed as bar are refused."""
+    clamping = valves.clamping()
+    bank = clamping.bank
+    with bank:
+        bank.set_pressures({"s1_a": 2.7, "s1_b": -0.2, "s1_c": 1.0})
+        np.testing.assert_allclose(clamping.driven_bar()[:3], [2.5, 0.0, 1.0], atol=clamping.tolerance_bar)
+        assert bank.setpoints_bar["s1_a"] == 2.5 and bank.setpoints_bar["s1_b"] == 0.0
+        for value in (250000.0, 2.76, -0.26, -1.0):
+            with pytest.raises(ValueError, match=rf"channel s3: {value} bar is outside \[0, 2.5\] bar by more than "
+                                                 r"the clamping tolerance of 0.25 bar \(10% of the limit\)"):
+                bank.set_pressures({"s3": value, "s1_c": 2.0})
+        for value in (math.nan, math.inf):
+            with pytest.raises(ValueError, match="channel s3: pressure"):
+                bank.set_pressures({"s3": value})
+        np.testing.assert_allclose(clamping.driven_bar()[:3], [2.5, 0.0, 1.0], atol=clamping.tolerance_bar)
+        assert clamping.driven_bar()[6] == 0.0
+
+
+# --- the base class's constructor --------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("kwargs", "error", "message"), [
+    ({"max_pressure_bar": True}, TypeError, r"max_pressure_bar: expected a number in \(0, inf\) bar, got True"),
+    ({"max_pressure_bar": math.nan}, ValueError, "max_pressure_bar: expected a finite number"),
+    ({"max_pressure_bar": math.inf}, ValueError, "max_pressure_bar: expected a finite number"),
+    ({"max_pressure_bar": 0}, ValueError, "max_pressure_bar: expected a finite number"),
+    ({"max_pressure_bar": "2.5"}, TypeError, r"max_pressure_bar: .* \(a str\)"),
+    ({"clamp": 1}, TypeError, "clamp: expected True or False, got 1"),
+    ({"channels": "s1_a"}, TypeError, "channels: expected a list of valve names"),
+    ({"channels": ["a", ""]}, ValueError, "channels: expected unique names"),
+])
+def test_a_bank_checks_its_constructor_arguments(kwargs, error, message):
+    arguments = {"channels": ARM_CHANNELS, "max_pressure_bar": 2.5, **kwargs}
+    with pytest.raises(error, match=message):
+        FakeValveBank(**arguments)

@@ -1,6 +1,7 @@
 """The simulated valve bank honours the ValveBank contract and drives the simulation."""
 
 import logging
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -87,22 +88,41 @@ def test_bad_set_points_are_value_errors_naming_the_channel(bank, sim, pressures
 
 
 def test_clamping_bank_clamps_and_logs(sim, caplog):
+    # within the clamping tolerance (10 % of the 2.5 bar limit); 3 bar and -1 bar are refused below
     sim.reset()
     with caplog.at_level(logging.WARNING), SimValveBank(sim, clamp=True) as bank:
-        bank.set_pressures({"s2_a": 3.0, "s2_b": -1.0})
+        bank.set_pressures({"s2_a": 2.7, "s2_b": -0.2})
         assert sim.commanded_bar[4] == 2.5 and sim.commanded_bar[5] == 0.0
     assert any("s2_a" in r.getMessage() and "clamp" in r.getMessage() for r in caplog.records), caplog.text
     assert any("s2_b" in r.getMessage() for r in caplog.records), caplog.text
 
 
+@pytest.mark.parametrize(("tolerance", "pressures", "message"), [
+    (0.1, {"s2_a": 3.0}, r"channel s2_a: 3.0 bar is outside \[0, 2.5\] bar by more than the clamping tolerance "
+                          r"of 0.25 bar"),
+    (0.1, {"s2_b": -1.0}, r"channel s2_b: -1.0 bar is outside \[0, 2.5\] bar by more than"),
+    (0.1, {"s3": 250000.0}, r"channel s3: 250000.0 bar is outside .* is it in the wrong unit\?"),
+    (0.0, {"s1_a": 2.6}, r"channel s1_a: 2.6 bar is outside \[0, 2.5\] bar by more than the clamping tolerance "
+                         r"of 0 bar \(0% of the limit\)"),
+])
+def test_clamping_bank_refuses_what_is_beyond_its_tolerance(sim, tolerance, pressures, message):
+    sim.reset()
+    with SimValveBank(sim, clamp=True, clamp_tolerance=tolerance) as bank:
+        bank.set_pressures({"s1_b": 1.0})
+        with pytest.raises(ValueError, match=message):
+            bank.set_pressures(pressures)
+        np.testing.assert_array_equal(sim.commanded_bar, [0, 1.0, 0, 0, 0, 0, 0])
+
+
 def test_the_twin_config_turns_clamping_on(tmp_path, caplog):
     """``[valves] clamp = true`` in a twin file reaches the twin's valve bank."""
     models = Path(__file__).resolve().parents[2] / "models"
-    text = (models / "twin.toml").read_text().replace("clamp = false", "clamp = true")
-    text = text.replace('arm = "arm.toml"', f'arm = "{models / "arm.toml"}"')
-    text = text.replace('camera = "camera.toml"', f'camera = "{models / "camera.toml"}"')
-    (tmp_path / "twin.toml").write_text(text)
+    for path in models.glob("*.toml"):  # the files twin.toml refers to, beside it
+        shutil.copy(path, tmp_path)
+    text = (models / "twin.toml").read_text()
+    assert "clamp = false" in text
+    (tmp_path / "twin.toml").write_text(text.replace("clamp = false", "clamp = true"))
     with Twin.from_config(tmp_path / "twin.toml") as tw, caplog.at_level(logging.WARNING), tw.valves as bank:
-        bank.set_pressures({"s3": 9.0})
+        bank.set_pressures({"s3": 2.6})  # within the clamping tolerance
         assert bank.setpoints_bar["s3"] == 2.5
     assert "s3" in caplog.text
