@@ -31,11 +31,13 @@ from hardware.errors import (
     LinkLostError,
     NotConnectedError,
     VentedBySignalError,
+    WrongTypeError,
 )
-from hardware.interfaces import ValveBank
+from hardware.interfaces import DEFAULT_CLAMP_TOLERANCE, ValveBank, check_integer, check_number
 from hardware.protocol import (
     ACK,
     DEFAULT_BAUD,
+    MAX_MBAR,
     NAK,
     PROTOCOL_VERSION,
     SEQ_MODULO,
@@ -51,6 +53,12 @@ from hardware.protocol import (
 
 _log = logging.getLogger(__name__)
 
+# Bounds of the constructor's arguments: wide, but finite, so a slip is an error naming the argument.
+MIN_BAUD, MAX_BAUD = 300, 20_000_000
+MAX_WAIT_S = 10.0  # reply_timeout_s and heartbeat_s
+MAX_RETRIES = 10
+MAX_BOARD_CHANNEL = 255
+
 
 class SerialValveBank(ValveBank):
     """A ``ValveBank`` driving the valve-driver board over any pyserial port or URL.
@@ -61,42 +69,55 @@ class SerialValveBank(ValveBank):
         channels: valve names in command order, each on the board channel of its position; or a
             mapping name -> board channel index (0-based, the position in the SET frame).
             Board channels without a name are held at 0 bar.
-        max_pressure_bar: host-side limit; must not exceed the board's own limit.
-        baud: serial rate (ignored by URLs without one).
-        clamp: clamp out-of-range set-points to [0, max] with a warning instead of raising.
-        reply_timeout_s: how long to wait for each reply.
-        retries: extra attempts after a timeout or a corrupted exchange (bounded).
-        heartbeat_s: longest silence on the link; must stay well under the board's watchdog.
+        max_pressure_bar: host-side limit, (0, 65.535] bar; must not exceed the board's own limit.
+        baud: serial rate, 300 .. 20000000 (ignored by URLs without one).
+        clamp: clamp set-points slightly out of range (within ``clamp_tolerance``) to [0, max] with a
+            warning instead of raising.
+        clamp_tolerance: how far out of range ``clamp`` reaches, a fraction of max_pressure_bar in [0, 0.5].
+        reply_timeout_s: how long each attempt waits for the reply, (0, 10] s.
+        retries: re-sends of the same frame after a timeout, 0 .. 10.
+        heartbeat_s: longest silence on the link, (0, 10] s; must stay under half the board's watchdog.
 
     Raises:
-        ValueError: bad channel names or board channels, or non-positive timings.
+        WrongTypeError (a ``TypeError`` and a ``ValueError``): an argument of the wrong type
+            (``max_pressure_bar=True``, ``retries=2.0``, a string as the channel list).
+        ValueError: bad channel names or board channels, or a number outside its range (NaN and
+            infinity included); the message names the argument and the allowed range.
     """
 
     def __init__(self, port: str, channels: Sequence[str] | Mapping[str, int], max_pressure_bar: float, *,
-                 baud: int = DEFAULT_BAUD, clamp: bool = False, reply_timeout_s: float = 0.05, retries: int = 2,
-                 heartbeat_s: float = 0.08) -> None:
+                 baud: int = DEFAULT_BAUD, clamp: bool = False, clamp_tolerance: float = DEFAULT_CLAMP_TOLERANCE,
+                 reply_timeout_s: float = 0.05, retries: int = 2, heartbeat_s: float = 0.08) -> None:
+        if not isinstance(port, str | os.PathLike):
+            raise WrongTypeError(f"port: expected a serial device path or a pyserial URL, got {port!r}")
+        if not str(port).strip():
+            raise ValueError("port: expected a serial device path or a pyserial URL, got an empty string")
+        if isinstance(channels, str | bytes) or not isinstance(channels, Sequence | Mapping):
+            raise WrongTypeError(f"channels: expected a list of valve names or a mapping name -> board channel, "
+                                 f"got {channels!r}")
         names = list(channels)
-        super().__init__(names, max_pressure_bar, clamp)
+        check_number("max_pressure_bar", max_pressure_bar, 0.0, MAX_MBAR / 1000.0, "bar", low_open=True)
+        super().__init__(names, max_pressure_bar, clamp, clamp_tolerance)
         board = [channels[n] for n in names] if isinstance(channels, Mapping) else list(range(len(names)))
         for name, index in zip(names, board, strict=True):
-            if not isinstance(index, int) or isinstance(index, bool) or index < 0:
-                raise ValueError(f"channel {name}: board channel must be a non-negative integer, got {index!r}")
+            if not isinstance(index, int) or isinstance(index, bool) or not 0 <= index <= MAX_BOARD_CHANNEL:
+                raise ValueError(f"channel {name}: board channel must be a non-negative integer "
+                                 f"(0 .. {MAX_BOARD_CHANNEL}), got {index!r}")
         if len(set(board)) != len(board):
             raise ValueError(f"channels: two names share a board channel in {dict(zip(names, board, strict=True))}")
-        if not (reply_timeout_s > 0 and heartbeat_s > 0 and isinstance(retries, int) and retries >= 0):
-            raise ValueError("reply_timeout_s and heartbeat_s must be positive and retries a non-negative integer")
         self._port = str(port)
-        self._baud = int(baud)
+        self._baud = check_integer("baud", baud, MIN_BAUD, MAX_BAUD)
         self._board_channels = tuple(board)
-        self._reply_timeout_s = float(reply_timeout_s)
-        self._retries = retries
-        self._heartbeat_s = float(heartbeat_s)
+        self._reply_timeout_s = check_number("reply_timeout_s", reply_timeout_s, 0.0, MAX_WAIT_S, "s", low_open=True)
+        self._retries = check_integer("retries", retries, 0, MAX_RETRIES)
+        self._heartbeat_s = check_number("heartbeat_s", heartbeat_s, 0.0, MAX_WAIT_S, "s", low_open=True)
         self._serial: serial.SerialBase | None = None
         self._lock = threading.Lock()  # one exchange at a time: caller, heartbeat, signal handler
         self._lock_owner: int | None = None
         self._seq = 0
         self._splitter = LineSplitter()
         self._lines: collections.deque[bytes] = collections.deque()
+        self._unreadable_replies = 0
         self._version: BoardVersion | None = None
         self._status: BoardStatus | None = None
         self._link_dead = False
@@ -136,6 +157,7 @@ class SerialValveBank(ValveBank):
         self._link_dead, self._fault, self._fault_reported = False, None, True
         self._vented_by_signal = False
         self._splitter, self._lines = LineSplitter(), collections.deque()
+        self._unreadable_replies = 0
         try:
             self._serial.reset_input_buffer()
             self._version = None
@@ -233,8 +255,17 @@ class SerialValveBank(ValveBank):
             raise NotConnectedError(f"{self!r}: version before connect()")
         return self._version
 
+    @property
+    def unreadable_replies(self) -> int:
+        """Lines from the board this host could not read since ``connect()`` (noise on the way back).
+
+        The other direction is counted by the board: ``status().unreadable_frames``.
+        """
+        return self._unreadable_replies
+
     def status(self) -> BoardStatus:
-        """Ask the board for its e-stop state, watchdog flag and applied set-points (sets nothing)."""
+        """Ask the board for its e-stop state, watchdog flag, applied set-points and count of
+        unreadable frames (sets nothing)."""
         if not self.is_connected:
             raise NotConnectedError(f"{self!r}: status() before connect()")
         if self._link_dead:
@@ -278,7 +309,12 @@ class SerialValveBank(ValveBank):
 
     def _exchange_locked(self, verb: str, args: tuple, connecting: bool) -> tuple[Frame, BoardStatus | BoardVersion]:
         """Send one command and return its ACK with the parsed payload (VER: the version, else
-        the status), retrying a bounded number of times.
+        the status).
+
+        Stale input is dropped first. Only a reply carrying this command's ``seq`` answers it; after
+        each ``reply_timeout_s`` without one the identical frame is sent again (``retries`` times),
+        and a reply to any of the attempts counts: a board that answers late is heard instead of
+        being sent more, and the board carries a re-sent frame out only once (``hardware/PROTOCOL.md``).
 
         Raises:
             LinkLostError: no answer after every attempt, or the port failed; also a watchdog vent.
@@ -292,40 +328,57 @@ class SerialValveBank(ValveBank):
         seq = self._next_seq()
         frame = encode(seq, verb, *args)
         attempts = 1 + self._retries
-        for _ in range(attempts):
-            try:
+        reply = None
+        try:
+            self._drop_stale_input(ser)
+            for _ in range(attempts):
                 ser.write(frame)
                 self._last_tx = time.monotonic()
                 reply = self._await_reply(ser, seq)
-            except (serial.SerialException, OSError) as e:
-                raise self._lose_link(f"{self._port}: serial I/O failed during {verb}: {e}") from e
-            if reply is None or reply.seq is None:  # timeout, or the board could not read our frame
-                continue
-            if reply.verb == NAK:
-                reason = reply.args[0] if reply.args else "?"
-                if reason == "ESTOP":
-                    raise self._record(EStopError(f"{self!r}: the board refused {verb}: its e-stop is latched and "
-                                                  "every valve is vented; release it, then call clear_estop()"))
-                raise DeviceError(f"{self!r}: the board refused {verb} ({reason}); protocol mismatch?")
-            if verb == "VER":
-                return reply, self._parse_version(reply)
-            status = self._parse_status(verb, reply)
-            self._check_status(status, connecting)
-            return reply, status
-        hint = (f"check that the board is powered and flashed, the cable, the baud rate ({self._baud}) and "
-                "that no other program holds the port")
-        raise self._lose_link(f"the valve board on {self._port} did not answer {verb} ({attempts} attempts, "
-                              f"{self._reply_timeout_s * 1000:.0f} ms each): {hint}")
+                if reply is not None:
+                    break
+        except (serial.SerialException, OSError) as e:
+            raise self._lose_link(f"{self._port}: serial I/O failed during {verb}: {e}") from e
+        if reply is None:
+            hint = (f"check that the board is powered and flashed, the cable, the baud rate ({self._baud}) and "
+                    "that no other program holds the port")
+            raise self._lose_link(f"the valve board on {self._port} did not answer {verb} ({attempts} attempts, "
+                                  f"{self._reply_timeout_s * 1000:.0f} ms each): {hint}")
+        if reply.verb == NAK:
+            reason = reply.args[0] if reply.args else "?"
+            if reason == "ESTOP":
+                raise self._record(EStopError(f"{self!r}: the board refused {verb}: its e-stop is latched and "
+                                              "every valve is vented; release it, then call clear_estop()"))
+            raise DeviceError(f"{self!r}: the board refused {verb} ({reason}); protocol mismatch?")
+        if verb == "VER":
+            return reply, self._parse_version(reply)
+        status = self._parse_status(verb, reply)
+        self._check_status(status, connecting)
+        return reply, status
+
+    def _drop_stale_input(self, ser: serial.SerialBase) -> None:
+        """Forget what arrived before this command: late replies, NAKs to line noise, half a line of noise."""
+        ser.reset_input_buffer()
+        self._splitter = LineSplitter()
+        self._lines.clear()
 
     def _await_reply(self, ser: serial.SerialBase, seq: int) -> Frame | None:
+        """The board's ACK or NAK carrying ``seq``, or None after ``reply_timeout_s``.
+
+        Everything else is skipped: lines the checksum rejects (noise from the board's side),
+        replies to earlier commands, and NAKs without a sequence number: the board could not read
+        *some* line, which may be noise on the cable rather than this command; if it was this
+        command, no reply with ``seq`` comes and the caller sends it again.
+        """
         deadline = time.monotonic() + self._reply_timeout_s
         while True:
             while self._lines:
                 try:
                     reply = decode(self._lines.popleft())
                 except ProtocolError:
-                    continue  # line noise from the board's side; the checksum caught it
-                if reply.verb in (ACK, NAK) and (reply.seq == seq or reply.seq is None):
+                    self._unreadable_replies += 1
+                    continue
+                if reply.seq == seq and reply.verb in (ACK, NAK):
                     return reply
             if time.monotonic() >= deadline:
                 return None
