@@ -119,18 +119,8 @@ def _calibrate_sim(config, args, board: BoardSpec, n_views: int, out: Path) -> i
     return 0 if ok else 1  # the twin knows the truth: missing it is a failure of the workflow
 
 
-def _nominal_calibration(resolution: str) -> StereoCalibration:
-    """A stand-in used only to open a ZED that has no calibration file yet (raw frames do not
-    depend on it): a ZED-like pinhole pair of the resolution's size."""
-    from hardware.zed import ZED_RESOLUTIONS
-
-    w, h = ZED_RESOLUTIONS[resolution]
-    K = np.array([[w * 0.55, 0, (w - 1) / 2], [0, w * 0.55, (h - 1) / 2], [0, 0, 1.0]])
-    return StereoCalibration(K, np.zeros(5), K, np.zeros(5), np.eye(3), np.array([-0.12, 0.0, 0.0]), (w, h))
-
-
 def _calibrate_rig(config, args, board: BoardSpec, n_views: int, out: Path) -> int:
-    from bench.factory import rig_calibration, rig_camera
+    from bench.factory import nominal_calibration, rig_calibration, rig_camera
     from estimator.calibration import CalibrationFileError
     from hardware.errors import DeviceError, EndOfStreamError
 
@@ -141,7 +131,7 @@ def _calibrate_rig(config, args, board: BoardSpec, n_views: int, out: Path) -> i
         print(f"note: no usable calibration to compare with ({e}); opening the camera without one")
         reference = None
     try:
-        camera = rig_camera(cam, config.path, reference or _nominal_calibration(cam.resolution))
+        camera = rig_camera(cam, config.path, reference or nominal_calibration(cam))
     except (ValueError, DeviceError) as e:  # both name the config file and [rig.camera] source (or the key)
         print(f"softarm calibrate: {e}", file=sys.stderr)
         print("softarm calibrate: no camera, nothing calibrated; check the camera or point [rig.camera] source at "

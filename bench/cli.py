@@ -21,6 +21,10 @@ _HANDLERS = {
 }
 
 
+# bench.recording's EXIT_* codes (not imported here: `softarm --help` stays fast)
+_RUN_EXIT_CODES = "exit status: 0 done; 1 failed while writing; 2 RUN is not a readable run folder"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="softarm",
@@ -42,13 +46,17 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--frames", type=int, help="spread N frames over the whole experiment (quick, coarse run)")
     run.add_argument("--out", help="run folder; default runs/<timestamp>")
     run.add_argument("--no-report", action="store_true", help="skip the plots and video at the end")
+    run.add_argument("--yes", action="store_true",
+                     help="go ahead with a run expected to write more than 2 GB (the expected size is printed first)")
 
     report = add("report", "Write plots, overlay video and a markdown summary for a run folder.",
                  "softarm report runs/2026-11-22_101500")
+    report.epilog = _RUN_EXIT_CODES
     report.add_argument("run_dir", metavar="RUN")
 
     replay = add("replay", "Re-run an estimator configuration on a recorded run and score it again.",
                  "softarm replay runs/2026-11-22_101500 --mode paper")
+    replay.epilog = _RUN_EXIT_CODES
     replay.add_argument("run_dir", metavar="RUN")
     replay.add_argument("--mode", choices=("default", "paper"))
     replay.add_argument("--centerline", choices=("som", "competitive", "kmeans++", "thinning", "skeleton"),

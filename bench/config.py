@@ -43,6 +43,22 @@ CALIBRATION_SUFFIXES = (".conf", ".toml")
 EXPERIMENT_KINDS = ("ramp", "step", "sweep", "random")
 # The paper's real-time bending experiment (section 5.2): the driven circuits of the three sections.
 PAPER_CHANNELS = ("s1_a", "s2_a", "s3")
+# The arm's valves and their board channels (models/bench.toml): what [rig.valves] channels defaults to.
+ARM_VALVE_CHANNELS = {"s1_a": 0, "s1_b": 1, "s1_c": 2, "s1_d": 3, "s2_a": 4, "s2_b": 5, "s3": 6}
+
+# Bounds of every bench config: generous, but finite, so that an absurd value is a config error
+# naming the key before anything is allocated or moved, not a memory error half way into a run.
+MAX_FRAMES = 1_000_000            # captures of one run (690 in the paper)
+MAX_DURATION_S = 24 * 3600.0      # an experiment, or its lead-in
+MAX_PRESSURE_BAR = 10.0           # any pressure (the arm's PMAs take 2.5 bar)
+MIN_STEP_BAR = 0.001              # a staircase's step (the board's resolution is 1 mbar)
+MAX_CHANNELS = 64                 # valves driven by one experiment
+MAX_CHANGES = 100_000             # pressure changes in one schedule (the paper's ramp: 51)
+MAX_CAPTURE_RATE_HZ = 10_000.0    # captures per second of the schedule (simulated seconds on the twin)
+MAX_CHANGE_RATE_HZ = 1000.0       # pressure changes per second of the schedule (the board takes ~100)
+MAX_FPS = 1000.0                  # a recording's assumed frame rate
+MAX_BAUD = 20_000_000
+MAX_BOARD_CHANNEL = 255
 
 
 class ConfigError(ValueError):
@@ -86,8 +102,8 @@ class CameraConfig:
         object.__setattr__(self, "resolution", resolution_name(self.resolution))
         if isinstance(self.source, int) and self.source < 0:
             raise ValueError(f"source: a device index must be >= 0, got {self.source}")
-        if not (math.isfinite(self.fps) and self.fps > 0):
-            raise ValueError(f"fps: expected a positive frame rate, got {self.fps!r}")
+        if not (math.isfinite(self.fps) and 0 < self.fps <= MAX_FPS):
+            raise ValueError(f"fps: expected a frame rate in (0, {MAX_FPS:g}], got {self.fps!r}")
         if self.is_device and self.fps not in ZED_FPS[self.resolution]:
             raise ValueError(f"fps: the ZED offers {', '.join(map(str, ZED_FPS[self.resolution]))} fps at "
                              f"{self.resolution}, got {self.fps:g}")
@@ -107,7 +123,8 @@ class ValvesConfig:
 
     Attributes:
         port: serial device (``/dev/serial/by-id/...``) or pyserial URL (``socket://host:port``).
-        channels: valve name -> board channel index (0-based), in command order.
+        channels: valve name -> board channel index (0-based), in command order (left out: the
+            arm's seven valves s1_a .. s3 on channels 0 .. 6, as in models/bench.toml).
         max_pressure_bar: host-side limit on every channel (the board enforces its own too).
         baud: serial rate.
         clamp: clamp out-of-range set-points with a warning instead of raising.
@@ -117,7 +134,7 @@ class ValvesConfig:
     """
 
     port: str
-    channels: Mapping[str, int]
+    channels: Mapping[str, int] = field(default_factory=lambda: dict(ARM_VALVE_CHANNELS))
     max_pressure_bar: float = 2.5
     baud: int = DEFAULT_BAUD
     clamp: bool = False
@@ -126,18 +143,20 @@ class ValvesConfig:
     def __post_init__(self) -> None:
         if not self.port.strip():
             raise ValueError("port: expected a serial device or pyserial URL, got an empty string")
-        if not (math.isfinite(self.max_pressure_bar) and self.max_pressure_bar > 0):
-            raise ValueError(f"max_pressure_bar: expected a positive pressure, got {self.max_pressure_bar!r}")
-        if self.baud <= 0:
-            raise ValueError(f"baud: expected a positive rate, got {self.baud}")
+        if not (math.isfinite(self.max_pressure_bar) and 0 < self.max_pressure_bar <= MAX_PRESSURE_BAR):
+            raise ValueError(f"max_pressure_bar: expected a pressure in (0, {MAX_PRESSURE_BAR:g}] bar, "
+                             f"got {self.max_pressure_bar!r}")
+        if not 0 < self.baud <= MAX_BAUD:
+            raise ValueError(f"baud: expected a rate in 1 .. {MAX_BAUD}, got {self.baud}")
         if not (math.isfinite(self.reply_timeout_s) and 0 < self.reply_timeout_s <= 1.0):
             raise ValueError(f"reply_timeout_s: expected 0 < seconds <= 1 (the board's watchdog vents after "
                              f"0.25 s of silence), got {self.reply_timeout_s!r}")
         if not self.channels:
             raise ValueError("channels: expected at least one 'name = board channel' entry")
         for name, index in self.channels.items():
-            if index < 0:
-                raise ValueError(f"channels: {name} = {index}: board channels count from 0")
+            if not 0 <= index <= MAX_BOARD_CHANNEL:
+                raise ValueError(f"channels: {name} = {index}: expected a board channel in 0 .. {MAX_BOARD_CHANNEL} "
+                                 "(board channels count from 0)")
         by_index: dict[int, str] = {}
         for name, index in self.channels.items():
             if index in by_index:
@@ -163,16 +182,20 @@ class DepthConfig:
     scale_m: float = 0.001
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.scale_m) and self.scale_m > 0):
-            raise ValueError(f"scale_m: expected a positive number of metres per unit, got {self.scale_m!r}")
+        if not (math.isfinite(self.scale_m) and 0 < self.scale_m <= 1.0):
+            raise ValueError(f"scale_m: expected metres per unit in (0, 1], got {self.scale_m!r}")
 
 
 @dataclass(frozen=True)
 class RigConfig:
-    """``[rig]``: the physical devices (and, optionally, a depth source for the Q' metric)."""
+    """``[rig]``: the physical devices (and, optionally, a depth source for the Q' metric).
+
+    ``[rig.valves]`` may be left out where nothing moves (``softarm calibrate`` needs only the
+    camera); ``softarm run`` on the rig then stops before opening anything and says so.
+    """
 
     camera: CameraConfig
-    valves: ValvesConfig
+    valves: ValvesConfig | None = None
     depth: DepthConfig | None = None
 
 
@@ -220,29 +243,79 @@ class ExperimentConfig:
     def __post_init__(self) -> None:
         if not self.channels:
             raise ValueError("channels: expected at least one valve name")
+        if len(self.channels) > MAX_CHANNELS:
+            raise ValueError(f"channels: expected at most {MAX_CHANNELS} valves, got {len(self.channels)}")
         if len(set(self.channels)) != len(self.channels):
             raise ValueError(f"channels: a valve is listed twice in {list(self.channels)}")
         for name in ("start_bar", "max_bar", "step_bar", "duration_s", "step_at_s", "hold_s", "lead_in_s"):
             value = getattr(self, name)
             if not math.isfinite(value):
                 raise ValueError(f"{name}: expected a finite number, got {value!r}")
-        if not 0 <= self.start_bar < self.max_bar:
-            raise ValueError(f"max_bar: expected 0 <= start_bar < max_bar, got start_bar {self.start_bar:g}, "
-                             f"max_bar {self.max_bar:g}")
-        if not 0 < self.step_bar <= self.max_bar - self.start_bar:
-            raise ValueError(f"step_bar: expected a step in (0, max_bar - start_bar], got {self.step_bar:g}")
-        if self.duration_s <= 0:
-            raise ValueError(f"duration_s: expected a positive duration, got {self.duration_s:g}")
-        if self.frames < 1:
-            raise ValueError(f"frames: expected at least one frame, got {self.frames}")
+        if not 0 <= self.start_bar < self.max_bar <= MAX_PRESSURE_BAR:
+            raise ValueError(f"max_bar: expected 0 <= start_bar < max_bar <= {MAX_PRESSURE_BAR:g} bar, got start_bar "
+                             f"{self.start_bar:g}, max_bar {self.max_bar:g}")
+        if not MIN_STEP_BAR <= self.step_bar <= self.max_bar - self.start_bar:
+            raise ValueError(f"step_bar: expected a step in (0, max_bar - start_bar] and at least {MIN_STEP_BAR:g} bar "
+                             f"(the board's resolution), got {self.step_bar:g}")
+        if not 0 < self.duration_s <= MAX_DURATION_S:
+            raise ValueError(f"duration_s: expected a duration in (0, {MAX_DURATION_S:g}] s (24 h), "
+                             f"got {self.duration_s:g}")
+        problem = frames_problem(self.frames, self.duration_s)
+        if problem:
+            raise ValueError(f"frames: {problem}")
         if not 0 <= self.step_at_s < self.duration_s:
             raise ValueError(f"step_at_s: expected a time in [0, duration_s), got {self.step_at_s:g}")
         if self.hold_s <= 0:
             raise ValueError(f"hold_s: expected a positive duration, got {self.hold_s:g}")
-        if self.lead_in_s < 0:
-            raise ValueError(f"lead_in_s: expected a duration >= 0, got {self.lead_in_s:g}")
+        if not 0 <= self.lead_in_s <= MAX_DURATION_S:
+            raise ValueError(f"lead_in_s: expected a duration in [0, {MAX_DURATION_S:g}] s (24 h), "
+                             f"got {self.lead_in_s:g}")
         if self.seed < 0:
             raise ValueError(f"seed: expected an integer >= 0, got {self.seed}")
+        self._check_changes()
+
+    def change_count(self) -> int:
+        """Pressure changes of the schedule (its length), known before anything is allocated."""
+        if self.kind == "step":
+            return 1 if self.step_at_s == 0 else 2
+        if self.kind == "random":
+            return max(1, math.ceil(self.duration_s / self.hold_s - 1e-9))
+        levels = staircase_count(self.start_bar, self.max_bar, self.step_bar)
+        return levels if self.kind == "ramp" else len(self.channels) * (2 * levels - 1)
+
+    def _check_changes(self) -> None:
+        """The schedule's length and its rate of pressure changes, derived from several keys."""
+        key = {"random": "hold_s", "step": "duration_s"}.get(self.kind, "step_bar")
+        what = {"ramp": "(max_bar - start_bar) / step_bar levels",
+                "sweep": "(max_bar - start_bar) / step_bar levels up and down on every channel",
+                "random": "duration_s / hold_s random levels", "step": "a step"}[self.kind]
+        changes = self.change_count()
+        if changes > MAX_CHANGES:
+            raise ValueError(f"{key}: {what} make {changes} pressure changes; expected at most {MAX_CHANGES}")
+        rate = changes / self.duration_s
+        if rate > MAX_CHANGE_RATE_HZ:
+            raise ValueError(f"{key}: {what} over duration_s = {self.duration_s:g} s make {rate:.4g} pressure changes "
+                             f"per second; expected at most {MAX_CHANGE_RATE_HZ:g}")
+
+
+def staircase_count(start_bar: float, max_bar: float, step_bar: float) -> int:
+    """Levels of the staircase start, start + step, ... up to max (max itself included even off the grid)."""
+    on_grid = math.floor((max_bar - start_bar) / step_bar + 1e-9) + 1
+    last = start_bar + step_bar * (on_grid - 1)
+    return on_grid + (1 if max_bar - last > 1e-9 else 0)
+
+
+def frames_problem(frames: int, duration_s: float) -> str | None:
+    """What is wrong with ``frames`` captures over ``duration_s`` seconds (count and rate), or None."""
+    if frames < 1:
+        return f"expected at least one frame, got {frames} (allowed: 1 to {MAX_FRAMES})"
+    if frames > MAX_FRAMES:
+        return f"expected at most {MAX_FRAMES} frames, got {frames} (allowed: 1 to {MAX_FRAMES})"
+    rate = (frames - 1) / duration_s
+    if rate > MAX_CAPTURE_RATE_HZ:
+        return (f"{frames} frames over duration_s = {duration_s:g} s is {rate:.4g} captures per second; "
+                f"expected at most {MAX_CAPTURE_RATE_HZ:g}")
+    return None
 
 
 @dataclass(frozen=True)
@@ -301,8 +374,8 @@ class ReportConfig:
         if not (math.isfinite(self.video_scale) and 0.05 <= self.video_scale <= 1.0):
             raise ValueError(f"video_scale: expected a factor in [0.05, 1], got {self.video_scale!r}")
         for name in ("selected_frames", "centerline_frames", "compensation_frames"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name}: expected a count >= 0, got {getattr(self, name)}")
+            if not 0 <= getattr(self, name) <= MAX_FRAMES:
+                raise ValueError(f"{name}: expected a count in 0 .. {MAX_FRAMES}, got {getattr(self, name)}")
 
 
 @dataclass(frozen=True)
@@ -323,7 +396,8 @@ class BenchConfig:
         if self.backend not in BACKENDS:
             raise ValueError(f"backend: expected one of {', '.join(map(repr, BACKENDS))}, got {self.backend!r}")
         if self.backend == "rig" and self.rig is None:
-            raise ValueError("rig: backend 'rig' needs a [rig] section with [rig.camera] and [rig.valves]")
+            raise ValueError("rig: backend 'rig' needs a [rig] section with [rig.camera] (and [rig.valves] to run "
+                             "experiments)")
         object.__setattr__(self, "estimator", types.MappingProxyType(dict(self.estimator)))
         self.estimator_config()  # unknown keys and bad values fail on load, naming [estimator] and the key
 
@@ -475,6 +549,8 @@ def _convert(value: Any, hint: Any, where: _Where, key: str, defaults_dir: Path)
         item = args[1] if len(args) == 2 else Any
         return {str(k): _convert(v, item, where, f"{key}.{k}", defaults_dir) for k, v in value.items()}
     if hint is float:
+        if not math.isfinite(value):  # TOML writes inf and nan; no key of the bench takes them
+            raise where.error(key, f"expected a finite number, got {value!r}")
         return float(value)
     if hint is Path:
         return _resolve(Path(value), where.path.resolve().parent)

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.config import ExperimentConfig
+from bench.config import ExperimentConfig, frames_problem
 
 # Levels are rounded to this (bar) so a staircase of 0.05 bar steps reads 0.35, not 0.35000000000000003.
 _LEVEL_DECIMALS = 6
@@ -103,11 +103,13 @@ def make_schedule(config: ExperimentConfig, frames: int | None = None) -> Schedu
             (first at 0 s, last at the end); ``softarm run --frames N``.
 
     Raises:
-        ValueError: ``frames`` below 1.
+        ValueError: ``frames`` out of bounds (below 1, above ``bench.config.MAX_FRAMES``, or more
+            captures per second than ``bench.config.MAX_CAPTURE_RATE_HZ``), before anything is allocated.
     """
     n = config.frames if frames is None else frames
-    if n < 1:
-        raise ValueError(f"--frames: expected at least one frame, got {n}")
+    problem = frames_problem(n, config.duration_s)
+    if problem:
+        raise ValueError(f"--frames: {problem}")
     builders = {"ramp": _ramp, "step": _step, "sweep": _sweep, "random": _random}
     times, levels = builders[config.kind](config)
     times = np.asarray(times, dtype=float)
@@ -122,7 +124,7 @@ def staircase(start_bar: float, max_bar: float, step_bar: float) -> np.ndarray:
     levels = start_bar + step_bar * np.arange(count + 1)
     if max_bar - levels[-1] > 1e-9:
         levels = np.append(levels, max_bar)
-    return levels
+    return levels  # bench.config.staircase_count(...) levels: the count the config's bounds were checked on
 
 
 def _ramp(c: ExperimentConfig):

@@ -57,7 +57,7 @@ def make_devices(config: BenchConfig) -> Devices:
     """Open the devices of ``config.backend`` ("sim" or "rig").
 
     Raises:
-        ConfigError: the twin's file (``[sim] twin``) does not exist.
+        ConfigError: the twin's file (``[sim] twin``) does not exist, or the rig has no ``[rig.valves]``.
         CalibrationFileError: the rig's calibration file is missing or malformed.
         DeviceError: a device cannot be opened, or does not match its configuration.
         ValueError: the backend is not one of "sim", "rig", or a ``[rig.camera]`` value the
@@ -91,6 +91,41 @@ def rig_calibration(cam: CameraConfig, config_path: Path) -> StereoCalibration:
         raise CalibrationFileError(f"{config_path} [rig.camera] calibration: {e}") from e
 
 
+def nominal_calibration(cam: CameraConfig) -> StereoCalibration:
+    """A stand-in calibration, only to open a camera whose calibration is missing or broken (the raw
+    frames do not depend on it): a ZED-like pinhole pair of the per-eye size the source delivers,
+    the resolution's for a device, the recording's own for a video or image folder."""
+    import numpy as np
+
+    from hardware.zed import ZED_RESOLUTIONS
+
+    size = None if cam.is_device else _recording_eye_size(cam.source)
+    w, h = size or ZED_RESOLUTIONS[cam.resolution]
+    K = np.array([[w * 0.55, 0, (w - 1) / 2], [0, w * 0.55, (h - 1) / 2], [0, 0, 1.0]])
+    return StereoCalibration(K, np.zeros(5), K, np.zeros(5), np.eye(3), np.array([-0.12, 0.0, 0.0]), (w, h))
+
+
+def _recording_eye_size(source: Path) -> tuple[int, int] | None:
+    """(width, height) of one eye of a side-by-side video or image folder, or None when it cannot be read."""
+    import cv2
+
+    from hardware.zed import IMAGE_SUFFIXES
+
+    source = Path(source)
+    if source.is_dir():
+        images = sorted(p for p in source.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        image = cv2.imread(str(images[0]), cv2.IMREAD_COLOR) if images else None
+        size = None if image is None else (image.shape[1], image.shape[0])
+    else:
+        capture = cv2.VideoCapture(str(source))
+        size = (int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)), int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT))) \
+            if capture.isOpened() else None
+        capture.release()
+    if size is None or size[0] < 2 or size[1] < 1:
+        return None
+    return size[0] // 2, size[1]
+
+
 def rig_camera(cam: CameraConfig, config_path: Path, calibration: StereoCalibration):
     """The ``hardware.zed.ZedCamera`` of ``[rig.camera]``, connected.
 
@@ -113,6 +148,9 @@ def rig_camera(cam: CameraConfig, config_path: Path, calibration: StereoCalibrat
 
 
 def _make_rig(rig: RigConfig, config_path: Path) -> Devices:
+    if rig.valves is None:
+        raise ConfigError(f"{config_path} [rig.valves]: the rig backend drives the valve board; add a [rig.valves] "
+                          "section with its port (only `softarm calibrate` works without one)")
     from hardware.valves import SerialValveBank
 
     cam = rig.camera

@@ -18,7 +18,10 @@ before its first frame. A frame's files are written first (each to a temporary n
 renamed), its line in ``frames.jsonl`` last, by one background thread; ``RunWriter.submit``
 waits for the previous frame to be on disk before handing over the next, so at any moment at
 most one frame is in flight: a SIGKILL loses at most the frame being written, and every line in
-``frames.jsonl`` has its images. A line cut short by the kill is skipped by the loader.
+``frames.jsonl`` has its images. A line cut short by the kill is skipped by the loader, and so is
+any line that is not a frame record (``bench.record_schema``) or repeats an index; ``Run.skipped``
+names each with its line number and why, and a ``summary.json`` that disagrees with the frames
+read (or is not a JSON object) is recomputed from them.
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ import cv2
 import numpy as np
 
 from bench.config import RecordingConfig
+from bench.record_schema import record_problem
 from bench.scoring import DEPTH_UNIT_M, dequantize_depth, summarize
 from estimator import StereoCalibration
 
@@ -48,6 +52,57 @@ FRAMES_DIR = "frames"
 FORMAT_VERSION = 1
 _PNG_STRATEGIES = {"huffman": cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY, "rle": cv2.IMWRITE_PNG_STRATEGY_RLE,
                    "default": cv2.IMWRITE_PNG_STRATEGY_DEFAULT}
+
+
+# What a recorded frame costs on disk, for the estimate printed (and, above 2 GB, confirmed) before a run.
+# Bytes per byte of raw BGR image, measured on the twin's noisy 1280x720 frames (2026-12-01, OpenCV 5.0):
+# PNG at levels 1-9 with the Huffman-only or RLE strategy 0.385-0.387, the default strategy 0.43-0.48,
+# level 0 (stored) 1.0; JPEG at quality 50: 0.006, 75: 0.007, 95: 0.04, 100: 0.17 (interpolated between).
+# A real camera's frames compress differently (less noise, more texture): the figure is an estimate.
+_PNG_RATIO = {"huffman": 0.39, "rle": 0.39, "default": 0.48}
+_JPEG_RATIO = ((0, 0.006), (50, 0.006), (75, 0.007), (95, 0.04), (100, 0.17))
+# The twin's left depth (16-bit PNG, the arm on an empty background): 12-25 KB at 1280x720.
+_DEPTH_BYTES_PER_PIXEL = 0.03
+# One frames.jsonl line: about 9 KB on the twin (the 100-point backbone included); the paper mode adds ~4 KB.
+_RECORD_BYTES, _COMPARE_RECORD_BYTES = 10_000, 5_000
+
+
+def frame_bytes(recording: RecordingConfig, image_size: tuple[int, int], *, depth: bool, compare: bool) -> float:
+    """Expected bytes one recorded frame takes: both eyes as the recording settings encode them, the
+    depth map when one is kept, and the frame's line in frames.jsonl.
+
+    Args:
+        recording: the ``[recording]`` settings.
+        image_size: (width, height) of one eye, pixels.
+        depth: the twin's left depth map is kept (``[recording] depth`` on the sim backend).
+        compare: the paper mode's estimate is recorded too (``--compare``).
+    """
+    width, height = image_size
+    raw = 3.0 * width * height
+    if not recording.lossless_frames:
+        quality, ratios = recording.jpeg_quality, _JPEG_RATIO
+        ratio = float(np.interp(quality, [q for q, _ in ratios], [r for _, r in ratios]))
+    elif recording.png_compression == 0:
+        ratio = 1.0
+    else:
+        ratio = _PNG_RATIO[recording.png_strategy]
+    total = 2 * raw * ratio + _RECORD_BYTES + (_COMPARE_RECORD_BYTES if compare else 0)
+    if depth:
+        total += _DEPTH_BYTES_PER_PIXEL * width * height
+    return total
+
+
+def human_bytes(n: float) -> str:
+    """1234567 -> '1.2 MB' (decimal units, as disks are sold)."""
+    for unit, size in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if n >= size:
+            return f"{n / size:.1f} {unit}"
+    return f"{n:.0f} B"
+
+
+# Exit codes of the commands that read a run folder, ``softarm report`` and ``softarm replay``: 0 done;
+# 1 the work failed (the report or the replay could not be written); 2 RUN is not a readable run folder.
+EXIT_OK, EXIT_FAILED, EXIT_NOT_A_RUN = 0, 1, 2
 
 
 class RunFolderError(ValueError):
@@ -222,6 +277,17 @@ def _write_image(path: Path, image: np.ndarray, ext: str, params: list[int]) -> 
 # --- loading --------------------------------------------------------------------------------
 
 
+@dataclasses.dataclass(frozen=True)
+class SkippedLine:
+    """A line of ``frames.jsonl`` that was not read as a frame, and why."""
+
+    line: int  # 1-based
+    why: str
+
+    def __str__(self) -> str:
+        return f"line {self.line}: {self.why}"
+
+
 @dataclasses.dataclass
 class Run:
     """A run folder read back.
@@ -229,10 +295,14 @@ class Run:
     Attributes:
         path: the folder.
         config: ``config.json`` (the resolved configuration, schedule, estimator settings).
-        frames: frame records in order (``frames.jsonl``), a cut-short last line skipped.
-        summary: ``summary.json``, or one recomputed from the frames when the run was killed.
-        complete: whether ``summary.json`` was there (the run finished, or stopped cleanly).
-        skipped_lines: lines of ``frames.jsonl`` that could not be read (a killed run's last one).
+        frames: frame records in order (``frames.jsonl``), each checked against the record schema
+            (``bench.record_schema``); the first of a repeated index is kept.
+        summary: ``summary.json``, recomputed from the frames where the run was killed (none), it
+            is unreadable or not an object, or it disagrees with the frames read.
+        complete: whether a readable ``summary.json`` was there (the run finished, or stopped cleanly).
+        skipped: lines of ``frames.jsonl`` not read as frames, with why (a killed run's cut-short
+            last line, a partial or malformed record, a repeated index).
+        summary_note: why the summary was recomputed, or None when ``summary.json`` was used as written.
     """
 
     path: Path
@@ -240,11 +310,17 @@ class Run:
     frames: list[dict]
     summary: dict
     complete: bool
-    skipped_lines: int = 0
+    skipped: list[SkippedLine] = dataclasses.field(default_factory=list)
+    summary_note: str | None = None
+
+    @property
+    def skipped_lines(self) -> int:
+        return len(self.skipped)
 
     @property
     def backend(self) -> str:
-        return self.config.get("backend", "sim")
+        backend = self.config.get("backend", "sim")
+        return backend if isinstance(backend, str) else "sim"
 
     @property
     def has_ground_truth(self) -> bool:
@@ -262,8 +338,15 @@ class Run:
             raise RunFolderError(f"{self.path}: no {CALIBRATION_FILE} in the run folder")
         return StereoCalibration.load(path)
 
+    def section(self, *keys: str) -> dict:
+        """A table of ``config.json`` (``section("bench", "report")``); {} where it is missing or not an object."""
+        table: Any = self.config
+        for key in keys:
+            table = table.get(key) if isinstance(table, dict) else None
+        return dict(table) if isinstance(table, dict) else {}
+
     def report_options(self) -> dict:
-        return dict(self.config.get("bench", {}).get("report", {}))
+        return self.section("bench", "report")
 
     def image(self, record: Mapping, side: str) -> np.ndarray | None:
         """The raw BGR image of one eye of a frame, or None when it was not recorded (or is missing)."""
@@ -285,26 +368,43 @@ class Run:
         return None if units is None else dequantize_depth(units, info.get("unit_m", DEPTH_UNIT_M))
 
 
-def read_frames(path: Path) -> tuple[list[dict], int]:
-    """Frame records of a ``frames.jsonl``; lines that are not complete JSON objects are skipped.
+def read_frames(path: Path) -> tuple[list[dict], list[SkippedLine]]:
+    """Frame records of a ``frames.jsonl``; every line that is not one is skipped and named.
+
+    A line is skipped when it is not JSON (the last one without its end of line: cut short by a
+    kill), when ``bench.record_schema.record_problem`` finds a missing key or a wrong type, or when
+    its index repeats an earlier record's (the first is kept). Blank lines are ignored.
 
     Returns:
-        (records, number of skipped lines).
+        (records in file order, skipped lines with why).
     """
-    records, skipped = [], 0
+    records: list[dict] = []
+    skipped: list[SkippedLine] = []
+    first_line: dict[int, int] = {}
     with open(path, encoding="utf-8", errors="replace") as f:
-        for line in f:
-            if not line.strip():
-                continue
-            try:
-                record = json.loads(line)
-            except json.JSONDecodeError:
-                skipped += 1
-                continue
-            if isinstance(record, dict) and "index" in record:
-                records.append(record)
-            else:
-                skipped += 1
+        lines = f.read().split("\n")
+    # split leaves "" after a final newline; a last line that is not "" had no end of line
+    for number, line in enumerate(lines, start=1):
+        if not line.strip():
+            continue
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError as e:
+            cut = number == len(lines)
+            why = "cut short (no end of line: the run was killed while writing it)" if cut else f"not JSON ({e})"
+            skipped.append(SkippedLine(number, why))
+            continue
+        problem = record_problem(record)
+        if problem:
+            skipped.append(SkippedLine(number, f"not a frame record: {problem}"))
+            continue
+        index = record["index"]
+        if index in first_line:
+            skipped.append(SkippedLine(number, f"index {index} again (first on line {first_line[index]}); "
+                                               "the first is kept"))
+            continue
+        first_line[index] = number
+        records.append(record)
     return records, skipped
 
 
@@ -312,42 +412,97 @@ def load_run(path: str | Path) -> Run:
     """Read a run folder, finished or killed.
 
     A killed run has no ``summary.json``; the summary is then recomputed from the frames (and
-    marked ``"stopped": "killed (no summary.json)"``); so is an unreadable one.
+    marked ``"stopped": "killed (no summary.json)"``); so is an unreadable one, or one that is
+    not a JSON object. A ``summary.json`` whose figures disagree with the frames read (a line
+    cut or edited after the run) is recomputed too, keeping what only the run knew (why it
+    stopped, its timings); ``Run.summary_note`` says so.
 
     Raises:
-        RunFolderError: not a run folder.
+        RunFolderError: not a run folder (no frames.jsonl or config.json), or a config.json that is
+            not a JSON object.
     """
     path = Path(path)
     frames_path = path / FRAMES_FILE
     if not frames_path.is_file():
         raise RunFolderError(f"{path}: not a run folder (no {FRAMES_FILE})")
+    config_path = path / CONFIG_FILE
     try:
-        config = json.loads((path / CONFIG_FILE).read_text(encoding="utf-8"))
+        config = json.loads(config_path.read_text(encoding="utf-8"))
     except FileNotFoundError as e:
         raise RunFolderError(f"{path}: not a run folder (no {CONFIG_FILE})") from e
-    except json.JSONDecodeError as e:
-        raise RunFolderError(f"{path / CONFIG_FILE}: not valid JSON ({e})") from e
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise RunFolderError(f"{config_path}: not valid JSON ({e})") from e
+    except OSError as e:
+        raise RunFolderError(f"{config_path}: cannot be read ({e})") from e
+    if not isinstance(config, dict):
+        raise RunFolderError(f"{config_path}: expected a JSON object (the run's configuration), got "
+                             f"{_json_kind(config)}")
     frames, skipped = read_frames(frames_path)
-    summary_path = path / SUMMARY_FILE
-    complete = summary_path.is_file()
-    summary = None
-    if complete:
-        try:
-            summary = json.loads(summary_path.read_text(encoding="utf-8"))
-        except json.JSONDecodeError as e:  # cut short or edited by hand: the frames still hold everything
-            complete = False
-            reason = f"{SUMMARY_FILE} unreadable ({e}); recomputed from the frames"
-    else:
-        reason = f"killed (no {SUMMARY_FILE})"
-    if summary is None:
+    stored, note = _read_summary(path / SUMMARY_FILE)
+    if stored is None:
         summary = summarize_run(frames, config)
-        summary["stopped"] = reason
-    return Run(path, config, frames, summary, complete, skipped)
+        summary["stopped"] = note
+        return Run(path, config, frames, summary, False, skipped, note)
+    wall_s = stored.get("wall_s")
+    fresh = summarize_run(frames, config, wall_s=wall_s if isinstance(wall_s, int | float) else None)
+    summary = {**stored, **fresh}  # keys the stored summary lacks are filled in from the frames
+    differences = [key for key, value in fresh.items() if key in stored and not _same(stored[key], value)]
+    if "paper" in stored and "paper" not in fresh:  # a paper-mode summary without paper-mode frames
+        differences.append("paper")
+        del summary["paper"]
+    if not differences:
+        return Run(path, config, frames, summary, True, skipped)
+    shown = ", ".join(_difference(key, stored[key], fresh[key]) for key in differences[:3])
+    more = f" and {len(differences) - 3} more" if len(differences) > 3 else ""
+    note = f"{SUMMARY_FILE} disagreed with the {len(frames)} frames read ({shown}{more}); recomputed from the frames"
+    return Run(path, config, frames, summary, True, skipped, note)
+
+
+def _read_summary(path: Path) -> tuple[dict | None, str]:
+    """``summary.json`` as an object, or (None, why it cannot be used)."""
+    if not path.is_file():
+        return None, f"killed (no {SUMMARY_FILE})"
+    try:
+        summary = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:  # cut short or edited by hand: the frames hold everything
+        return None, f"{SUMMARY_FILE} unreadable ({e}); recomputed from the frames"
+    except OSError as e:
+        return None, f"{SUMMARY_FILE} cannot be read ({e}); recomputed from the frames"
+    if not isinstance(summary, dict):
+        return None, f"{SUMMARY_FILE} is not a JSON object ({_json_kind(summary)}); recomputed from the frames"
+    return summary, ""
+
+
+def _json_kind(value: Any) -> str:
+    return {list: "a list", str: "a string", int: "a number", float: "a number", bool: "a boolean",
+            type(None): "null"}.get(type(value), type(value).__name__)
+
+
+def _same(stored: Any, fresh: Any) -> bool:
+    """Whether a stored summary value is the recomputed one (NaN is stored as null; floats to 1e-9)."""
+    fresh = jsonable(fresh)
+    if isinstance(fresh, dict):
+        return isinstance(stored, dict) and stored.keys() == fresh.keys() and all(
+            _same(stored[k], v) for k, v in fresh.items())
+    if isinstance(fresh, list):
+        return isinstance(stored, list) and len(stored) == len(fresh) and all(
+            _same(a, b) for a, b in zip(stored, fresh, strict=True))
+    if isinstance(fresh, float) and isinstance(stored, int | float) and not isinstance(stored, bool):
+        return math.isclose(stored, fresh, rel_tol=1e-9, abs_tol=1e-12)
+    return type(stored) is type(fresh) and stored == fresh
+
+
+def _difference(key: str, stored: Any, fresh: Any) -> str:
+    if isinstance(fresh, int) and isinstance(stored, int | float):
+        return f"{key} {stored} there, {fresh} in the frames"
+    return key
 
 
 def summarize_run(frames: list[dict], config: Mapping, *, wall_s: float | None = None) -> dict:
     """The ``summary.json`` of a run's frames: the main estimate, and the paper mode if compared."""
-    main_mode = config.get("estimators", {}).get("main", {}).get("mode", "default")
+    estimators = config.get("estimators")
+    main = estimators.get("main") if isinstance(estimators, Mapping) else None
+    main_mode = main.get("mode", "default") if isinstance(main, Mapping) else "default"
     summary = {"backend": config.get("backend"), "mode": main_mode,
                **summarize(frames, wall_s=wall_s)}
     if any("paper" in f for f in frames):

@@ -20,26 +20,42 @@ import cv2
 import numpy as np
 
 from bench.config import RecordingConfig
-from bench.recording import CALIBRATION_FILE, Run, RunFolderError, RunWriter, load_run, summarize_run
+from bench.recording import (
+    CALIBRATION_FILE,
+    EXIT_FAILED,
+    EXIT_NOT_A_RUN,
+    EXIT_OK,
+    Run,
+    RunFolderError,
+    RunWriter,
+    load_run,
+    summarize_run,
+)
 from bench.scoring import DEPTH_UNIT_M, summary_table
 from estimator import CenterlineEstimator, EstimatorConfig
 from hardware.interfaces import StereoFrame
 
 
 def replay_command(args) -> int:
-    """Entry point of ``softarm replay RUN [--mode ...] [--centerline ...] [--out DIR]``."""
+    """Entry point of ``softarm replay RUN [--mode ...] [--centerline ...] [--out DIR]``.
+
+    Returns:
+        0 replayed; 1 the replay failed (nothing to replay, the output folder is taken or cannot be
+        written); 2 RUN is not a readable run folder (or its recorded estimator settings are bad),
+        as ``softarm report`` answers.
+    """
     try:
         run = load_run(Path(args.run_dir))
         config = replay_estimator_config(run, getattr(args, "mode", None), getattr(args, "centerline", None))
     except (RunFolderError, ValueError) as e:
         print(f"softarm replay: {e}", file=sys.stderr)
-        return 2
+        return EXIT_NOT_A_RUN
     out = Path(args.out) if getattr(args, "out", None) else run.path / f"replay_{time.strftime('%Y-%m-%d_%H%M%S')}"
     try:
         summary = replay(run, config, out, progress=True)
     except (RunFolderError, OSError) as e:
         print(f"softarm replay: {e}", file=sys.stderr)
-        return 1
+        return EXIT_FAILED
     label = f"replay ({config.mode}, {config.centerline})"
     print(f"replayed {summary['frames']} frames of {run.path} into {out}")
     print("recorded:")
@@ -49,7 +65,7 @@ def replay_command(args) -> int:
     for line in summary_table(summary, label=label):
         print("  " + line)
     print(f"write its report with: softarm report {out}")
-    return 0
+    return EXIT_OK
 
 
 def replay_estimator_config(run: Run, mode: str | None = None, centerline: str | None = None) -> EstimatorConfig:
@@ -58,10 +74,10 @@ def replay_estimator_config(run: Run, mode: str | None = None, centerline: str |
     Raises:
         ValueError: a bad recorded configuration.
     """
-    recorded = run.config.get("estimators", {}).get("main")
+    recorded = run.section("estimators", "main")
     if recorded and mode is None and centerline is None:
         return EstimatorConfig.from_dict(recorded, source=f"{run.path} estimators.main")
-    table = dict(run.config.get("bench", {}).get("estimator", {}))
+    table = run.section("bench", "estimator")
     if recorded:
         table["mode"] = recorded.get("mode", table.get("mode", "default"))
     if mode is not None:

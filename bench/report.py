@@ -18,6 +18,7 @@ is recomputed from the frames). Everything goes to ``RUN/report/``:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 import time
@@ -27,8 +28,19 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from bench.recording import Run, RunFolderError, load_run, write_json
-from bench.scoring import PAPER, pooled_rmse, score_fields, summary_table
+from bench.config import ConfigError, ReportConfig, build_section
+from bench.recording import (
+    CONFIG_FILE,
+    EXIT_FAILED,
+    EXIT_NOT_A_RUN,
+    EXIT_OK,
+    FRAMES_FILE,
+    Run,
+    RunFolderError,
+    load_run,
+    write_json,
+)
+from bench.scoring import PAPER, invalid_lines, pooled_rmse, score_fields, summary_table
 from estimator import CenterlineEstimator, EstimatorConfig
 from estimator.segmentation import arm_mask
 
@@ -39,17 +51,17 @@ _COLOURS = {"main": "tab:green", "paper": "tab:purple", "paper_nearest": "tab:or
 
 
 def report_command(args) -> int:
-    """Entry point of ``softarm report RUN``."""
+    """Entry point of ``softarm report RUN``; returns 0 written, 1 failed to write, 2 RUN is not a run folder."""
     try:
         out = write_report(Path(args.run_dir), progress=True)
     except RunFolderError as e:
         print(f"softarm report: {e}", file=sys.stderr)
-        return 1
+        return EXIT_NOT_A_RUN
     except OSError as e:  # the run folder is read-only, the disk is full, ...
         print(f"softarm report: cannot write the report of {args.run_dir}: {e}", file=sys.stderr)
-        return 1
+        return EXIT_FAILED
     print(f"report written to {out}")
-    return 0
+    return EXIT_OK
 
 
 def write_report(run_dir: Path, *, progress: bool = False, options: Mapping | None = None) -> Path:
@@ -61,17 +73,18 @@ def write_report(run_dir: Path, *, progress: bool = False, options: Mapping | No
         options: ``[report]`` options overriding those recorded with the run.
 
     Raises:
-        RunFolderError: not a run folder.
+        RunFolderError: not a run folder, or its recorded ``[report]`` options are bad.
     """
     import matplotlib
 
     matplotlib.use("Agg")
     run = load_run(run_dir)
-    opts = {"video": True, "video_scale": 0.5, "selected_frames": 20, "centerline_frames": 6,
-            "compensation_frames": 60, **run.report_options(), **(options or {})}
+    opts = {**_recorded_report_options(run), **(options or {})}
     out = run.path / REPORT_DIR
     out.mkdir(exist_ok=True)
     say = (lambda text: print(f"report: {text}", file=sys.stderr, flush=True)) if progress else (lambda text: None)
+    for note in _reading_notes(run):
+        say(f"note: {note}")
     written: dict[str, str] = {}
     start = time.perf_counter()
     if not run.frames:
@@ -96,6 +109,33 @@ def write_report(run_dir: Path, *, progress: bool = False, options: Mapping | No
     return out
 
 
+def _recorded_report_options(run: Run) -> dict:
+    """The run's ``[report]`` options (config.json), checked like a config file's; defaults where left out.
+
+    Raises:
+        RunFolderError: a recorded option has a bad value (named by file and key).
+    """
+    known = {f.name for f in dataclasses.fields(ReportConfig)}
+    table = {k: v for k, v in run.report_options().items() if k in known}  # an older run's removed keys: ignored
+    try:
+        return dataclasses.asdict(build_section(ReportConfig, table, run.path / CONFIG_FILE, "bench.report"))
+    except ConfigError as e:
+        raise RunFolderError(str(e)) from e
+
+
+def _reading_notes(run: Run, limit: int = 5) -> list[str]:
+    """What reading the run folder found wrong: skipped lines of frames.jsonl, a recomputed summary."""
+    notes = []
+    if run.skipped:
+        shown = "; ".join(str(line) for line in run.skipped[:limit])
+        more = f"; and {len(run.skipped) - limit} more" if len(run.skipped) > limit else ""
+        notes.append(f"{len(run.skipped)} line{'s' if len(run.skipped) != 1 else ''} of {FRAMES_FILE} skipped "
+                     f"({shown}{more})")
+    if run.summary_note and run.complete:
+        notes.append(run.summary_note)
+    return notes
+
+
 # --- Fig 12: error compensation -------------------------------------------------------------
 
 
@@ -115,7 +155,7 @@ def compensation_study(run: Run, max_frames: int) -> dict | None:
     if not candidates:
         return None
     picks = _evenly(candidates, max_frames)
-    table = dict(run.config.get("bench", {}).get("estimator", {}))
+    table = run.section("bench", "estimator")
     calibration = run.calibration
     estimators = {variant: CenterlineEstimator(calibration, EstimatorConfig.from_dict(
         {**table, "mode": "paper", "compensation": variant}, source=f"{run.path} [estimator]"))
@@ -160,6 +200,8 @@ def _variant_summary(fields: Sequence[Mapping]) -> dict:
 def _fig12(run: Run, compensation: dict | None, path: Path) -> str:
     import matplotlib.pyplot as plt
 
+    from bench.figures import plain_log_axis
+
     has_exact = run.has_ground_truth
     has_q = any(f.get("qprime") for f in run.frames) or bool(
         compensation and any(x.get("qprime") for x in compensation["nearest"]))
@@ -186,7 +228,7 @@ def _fig12(run: Run, compensation: dict | None, path: Path) -> str:
             if kind == "qprime":
                 ax.axhline(PAPER["rmse_xyz_mm"][row], color="black", linestyle=":", linewidth=1,
                            label="paper, whole-motion RMSE (Table 2)")
-            ax.set_yscale("log")
+            plain_log_axis(ax)
             ax.set_ylabel(f"{axis} RMSE (mm)")
             ax.grid(True, which="both", alpha=0.3)
         axes[0][col].set_title("against the exact backbone" if kind == "exact"
@@ -218,6 +260,8 @@ def _axis_error(fields: Mapping, kind: str, axis: str) -> float:
 def _fig13(run: Run, path: Path) -> str:
     import matplotlib.pyplot as plt
 
+    from bench.figures import plain_log_axis
+
     fig, ax = plt.subplots(figsize=(8, 3.8))
     t = np.array([f["t_s"] for f in run.frames])
     for key, label in (("main", f"{run.summary.get('mode', 'default')} mode"), ("paper", "paper mode")):
@@ -231,7 +275,7 @@ def _fig13(run: Run, path: Path) -> str:
         ax.plot(t[1:], 1.0 / np.maximum(np.diff(t), 1e-6), color="tab:gray", linewidth=0.8,
                 label="loop rate (capture to capture)")
     ax.axhline(PAPER["fps"], color="black", linestyle=":", label=f"paper: about {PAPER['fps']:g} fps")
-    ax.set_yscale("log")
+    plain_log_axis(ax)
     ax.set_xlabel("time (s)" + (" (simulated)" if run.backend == "sim" else ""))
     ax.set_ylabel("frames per second")
     ax.set_title("Estimator frame rate (1 / time per frame) on this machine (Fig 13)")
@@ -381,7 +425,7 @@ def _fig10ab(run: Run, count: int, path: Path) -> str:
 
 
 def _main_estimator_config(run: Run) -> EstimatorConfig:
-    values = run.config.get("estimators", {}).get("main")
+    values = run.section("estimators", "main")
     if not values:
         return EstimatorConfig()
     return EstimatorConfig.from_dict({k: v for k, v in values.items()}, source=f"{run.path} estimators.main")
@@ -429,14 +473,39 @@ def write_overlay_video(run: Run, path: Path, scale: float) -> str:
             text = f"t {f['t_s']:5.1f} s  " + " ".join(f"{k} {v:.2f}" for k, v in f["commanded_bar"].items() if v)
             status = (f"rmse {f['errors']['rmse_mm']:.1f} mm" if f.get("errors")
                       else ("valid" if f.get("valid") else f"invalid: {f.get('reason', '')}"[:60]))
-            for k, line in enumerate((text, status)):
-                y = 18 + 18 * k
-                cv2.putText(frame, line, (8, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 3, cv2.LINE_AA)
-                cv2.putText(frame, line, (8, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
+            draw_caption(frame, (text, status))
             writer.write(frame)
     finally:
         writer.release()
     return f"written ({len(with_images)} frames at {fps:.1f} fps, {size[0]}x{size[1]})"
+
+
+_CAPTION_FONT, _CAPTION_SCALE, _CAPTION_PAD = cv2.FONT_HERSHEY_SIMPLEX, 0.45, 4
+
+
+def draw_caption(frame: np.ndarray, lines: Sequence[str],
+                 origin: tuple[int, int] = (4, 4)) -> tuple[int, int, int, int]:
+    """Write ``lines`` in white on an opaque black box in the top-left corner of a BGR frame (in place).
+
+    One thickness, one font scale and one anchor per line, all computed once: the text cannot drift
+    from its background the way an outline drawn at another thickness does (OpenCV 5 measures and
+    places text differently at different thicknesses).
+
+    Returns:
+        The box (x0, y0, x1, y1), pixels, clipped to the frame.
+    """
+    sizes = [cv2.getTextSize(line, _CAPTION_FONT, _CAPTION_SCALE, 1) for line in lines]
+    line_h = max(h + base for (_, h), base in sizes) + 2
+    width = max(w for (w, _), _ in sizes)
+    x0, y0 = origin
+    x1 = min(x0 + width + 2 * _CAPTION_PAD, frame.shape[1] - 1)
+    y1 = min(y0 + line_h * len(lines) + 2 * _CAPTION_PAD, frame.shape[0] - 1)
+    cv2.rectangle(frame, (x0, y0), (x1, y1), (0, 0, 0), thickness=-1)
+    for k, (line, ((_, h), _)) in enumerate(zip(lines, sizes, strict=True)):
+        baseline_y = y0 + _CAPTION_PAD + k * line_h + h
+        cv2.putText(frame, line, (x0 + _CAPTION_PAD, baseline_y), _CAPTION_FONT, _CAPTION_SCALE, (255, 255, 255), 1,
+                    cv2.LINE_AA)
+    return x0, y0, x1, y1
 
 
 # --- markdown -------------------------------------------------------------------------------
@@ -446,21 +515,26 @@ def _write_markdown(run: Run, compensation: dict | None, written: Mapping[str, s
                     elapsed_s: float) -> None:
     s = run.summary
     lines = [f"# Run {run.path.name}", ""]
-    cfg = run.config
-    schedule = cfg.get("schedule", {})
+    schedule = run.section("schedule")
     lines.append(f"- backend: **{run.backend}**; estimator mode: **{s.get('mode')}**"
                  + (" (paper mode compared on every frame)" if "paper" in s else ""))
     if schedule:
-        levels = np.asarray(schedule.get("levels_bar", [[0]]))
-        lines.append(f"- experiment: {schedule.get('kind')} on {', '.join(schedule.get('channels', []))}, "
-                     f"{levels.min():g} to {levels.max():g} bar over {schedule.get('duration_s')} s, "
-                     f"{len(schedule.get('capture_times_s', []))} frames scheduled")
+        try:
+            levels = np.asarray(schedule.get("levels_bar", [[0]]), dtype=float)
+            channels = ", ".join(map(str, schedule.get("channels", [])))
+            lines.append(f"- experiment: {schedule.get('kind')} on {channels}, "
+                         f"{levels.min():g} to {levels.max():g} bar over {schedule.get('duration_s')} s, "
+                         f"{len(schedule.get('capture_times_s', []))} frames scheduled")
+        except (TypeError, ValueError):  # edited by hand: the frames are still reported
+            lines.append("- experiment: config.json's schedule is unreadable")
     lines.append(f"- frames recorded: {len(run.frames)}, valid: {s.get('valid_frames')}")
-    if not run.complete:
-        lines.append(f"- **the run was killed**: no summary.json; summary recomputed from {len(run.frames)} frames"
-                     + (f" ({run.skipped_lines} cut-short line skipped)" if run.skipped_lines else ""))
+    if not run.complete and str(s.get("stopped", "")).startswith("killed"):
+        lines.append(f"- **the run was killed**: no summary.json; summary recomputed from {len(run.frames)} frames")
+    elif not run.complete:
+        lines.append(f"- **{s.get('stopped')}** ({len(run.frames)} frames)")
     elif s.get("stopped"):
         lines.append(f"- **stopped early**: {s['stopped']}")
+    lines += [f"- **{note}**" for note in _reading_notes(run, limit=20)]
     if s.get("dropped_frames"):
         lines.append(f"- dropped frames (the loop fell behind the capture schedule): {s['dropped_frames']}")
     if s.get("depth_source"):
@@ -488,15 +562,16 @@ def _write_markdown(run: Run, compensation: dict | None, written: Mapping[str, s
             lines.append(f"| {label} | {v['valid_frames']}/{v['frames']} | {_xyz(v['rmse_xyz_mm'])} | "
                          f"{_xyz(v['qprime_rmse_xyz_mm'])} | {_num(v['misalignment_px'])} |")
     bench_s = s.get("bench_s")
-    if bench_s:
+    wall_s = s.get("wall_s")
+    if bench_s and isinstance(bench_s, dict) and all(isinstance(v, int | float) for v in bench_s.values()) \
+            and isinstance(wall_s, int | float):
         lines += ["", "## Where the time went (wall-clock seconds)", "",
                   "| " + " | ".join(bench_s) + " | loop total |", "|" + "---|" * (len(bench_s) + 1),
-                  "| " + " | ".join(f"{v:.1f}" for v in bench_s.values()) + f" | {s.get('wall_s', math.nan):.1f} |",
+                  "| " + " | ".join(f"{v:.1f}" for v in bench_s.values()) + f" | {wall_s:.1f} |",
                   "", "record_thread runs beside the loop (PNG encoding); record_wait is the loop waiting for it."]
-    reasons = s.get("invalid_reasons") or {}
-    if reasons:
-        lines += ["", "## Invalid frames", ""]
-        lines += [f"- {count} x {reason}" for reason, count in sorted(reasons.items(), key=lambda kv: -kv[1])]
+    if s.get("invalid_reasons"):
+        lines += ["", "## Invalid frames", "", "Grouped by reason, measurements replaced by #:", ""]
+        lines += [f"- {line}" for line in invalid_lines(s)]
     lines += ["", "## Figures", ""]
     for name, note in written.items():
         if note.startswith("written"):

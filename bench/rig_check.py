@@ -1,5 +1,8 @@
 """``softarm rig check``: open the rig's devices, report what they are, move nothing, vent and close.
 
+Each device is checked on its own (the calibration file, the camera, the valve board), so one that
+fails does not hide the state of the others: every device is reported, then the failures.
+
 The calibration is checked against the camera itself: one grabbed frame is rectified with it
 and the rows of features matched between the two eyes are compared (``rectified_row_mismatch``).
 
@@ -9,7 +12,6 @@ before a run is switched over to it.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import sys
 from dataclasses import dataclass
@@ -18,48 +20,108 @@ import cv2
 import numpy as np
 
 from bench.config import ConfigError, load_bench_config
-from bench.factory import make_devices
+from bench.factory import nominal_calibration, rig_calibration, rig_camera
 from estimator import CalibrationFileError, StereoCalibration
 from hardware.errors import DeviceError
 
 
 def rig_command(args) -> int:
-    """Run the check; ``args.config`` may be None (the default config). Returns the exit code."""
+    """Run the check; ``args.config`` may be None (the default config). Returns the exit code: 0 when
+    every device is fine, 1 when the config is unusable or any device failed (the others are still
+    checked and reported)."""
     try:
         config = load_bench_config(getattr(args, "config", None))
         if config.rig is None:
             raise ConfigError(f"{config.path}: no [rig] section to check")
-        print(f"softarm rig check: {config.path}")
-        devices = make_devices(dataclasses.replace(config, backend="rig"))
-        with devices:
-            for line in describe_rig(devices, config.rig.camera.calibration):
-                print(line, flush=True)
-    except (ConfigError, CalibrationFileError, DeviceError, ValueError, OSError) as e:
+    except ConfigError as e:
         print(f"softarm rig check: FAILED: {e}", file=sys.stderr)
+        return 1
+    print(f"softarm rig check: {config.path}")
+    failed = []
+    for name, check in (("calibration", _check_calibration), ("camera", _check_camera), ("valves", _check_valves)):
+        lines, error = check(config)
+        for line in lines:
+            print(line, flush=True)
+        if error is not None:
+            failed.append(name)
+            print(f"{_LABELS[name]} FAILED: {error}", file=sys.stderr, flush=True)
+    if failed:
+        print(f"softarm rig check: FAILED: {', '.join(failed)} (the other devices are reported above); nothing was "
+              "moved", file=sys.stderr)
         return 1
     print("valves vented, devices closed: rig OK")
     return 0
 
 
-def describe_rig(devices, calibration_path) -> list[str]:
-    """Report lines for the camera mode, one grabbed frame, the calibration and the valve board."""
-    camera, valves = devices.camera, devices.valves
-    frame = camera.grab()
-    lines = [f"camera       {camera.mode}",
-             f"             grabbed frame {frame.index}: 2 x {frame.left.shape[1]}x{frame.left.shape[0]}"]
-    lines.append(f"calibration  {calibration_path}")
-    lines += ["             " + text for text in calibration_summary(camera.calibration, frame)]
+_LABELS = {"calibration": "calibration ", "camera": "camera      ", "valves": "valve board "}
+_INDENT = " " * 13
+_ERRORS = (ConfigError, CalibrationFileError, DeviceError, ValueError, OSError)
+
+
+def _check_calibration(config) -> tuple[list[str], BaseException | None]:
+    cam = config.rig.camera
+    try:
+        calibration = rig_calibration(cam, config.path)
+    except _ERRORS as e:
+        return [], e
+    return [f"calibration  {cam.calibration}"] + [_INDENT + line for line in calibration_summary(calibration)], None
+
+
+def _check_camera(config) -> tuple[list[str], BaseException | None]:
+    """Open the camera, grab one frame, and (with a usable calibration) measure the calibration against it."""
+    cam = config.rig.camera
+    try:
+        calibration = rig_calibration(cam, config.path)
+    except _ERRORS:
+        calibration = None  # reported by _check_calibration; the camera is still opened and read
+    try:
+        camera = rig_camera(cam, config.path, calibration or nominal_calibration(cam))
+    except _ERRORS as e:
+        return [], e
+    try:
+        frame = camera.grab()
+        lines = [f"camera       {camera.mode}",
+                 f"{_INDENT}grabbed frame {frame.index}: 2 x {frame.left.shape[1]}x{frame.left.shape[0]}"]
+        if calibration is not None:
+            lines.append(_INDENT + row_mismatch_line(calibration, frame))
+        else:
+            lines.append(f"{_INDENT}(the calibration is not measured against the camera: it could not be loaded)")
+    except _ERRORS as e:
+        return [f"camera       {camera.mode}"], e
+    finally:
+        camera.close()
+    return lines, None
+
+
+def _check_valves(config) -> tuple[list[str], BaseException | None]:
+    """Connect to the valve board (which vents), report what it says, close (vents again); no set-point."""
+    valves_config = config.rig.valves
+    if valves_config is None:
+        return [], ConfigError(f"{config.path}: no [rig.valves] section (the valve board's port and channels)")
+    from hardware.valves import SerialValveBank
+
+    try:
+        valves = SerialValveBank(valves_config.port, dict(valves_config.channels), valves_config.max_pressure_bar,
+                                 baud=valves_config.baud, clamp=valves_config.clamp,
+                                 reply_timeout_s=valves_config.reply_timeout_s)
+        with valves:  # connects (and vents); closing vents again
+            return describe_valves(valves), None
+    except _ERRORS as e:
+        return [], e
+
+
+def describe_valves(valves) -> list[str]:
+    """Report lines of a connected valve board: firmware, limits, e-stop, set-points."""
     version, status = valves.version, valves.status()
-    lines += [
+    return [
         f"valve board  {valves.port} at {valves.baud} baud: firmware {version.firmware}, protocol {version.protocol}, "
         f"{version.channels} channels, limit {version.max_mbar / 1000:g} bar, step {version.lsb_umbar / 1000:g} mbar, "
         f"watchdog {version.watchdog_ms} ms",
-        f"             e-stop {'LATCHED' if status.estop else 'released'}, set-points "
+        f"{_INDENT}e-stop {'LATCHED' if status.estop else 'released'}, set-points "
         + " ".join(f"{name}(ch{ch})={status.setpoints_mbar[ch]}" for name, ch in valves.board_channels.items())
         + " mbar",
-        f"             host limit {valves.max_pressure_bar:g} bar",
+        f"{_INDENT}host limit {valves.max_pressure_bar:g} bar",
     ]
-    return lines
 
 
 def calibration_summary(calib: StereoCalibration, frame=None) -> list[str]:
@@ -71,18 +133,19 @@ def calibration_summary(calib: StereoCalibration, frame=None) -> list[str]:
         f"baseline {calib.baseline_m * 1000:.2f} mm (rectified {rect.baseline_m * 1000:.2f} mm at focal "
         f"{rect.focal_px:.1f} px)",
     ]
-    if frame is None:
-        return lines
+    return lines if frame is None else [*lines, row_mismatch_line(calib, frame)]
+
+
+def row_mismatch_line(calib: StereoCalibration, frame) -> str:
+    """How well ``calib`` rectifies a grabbed frame, as one report line (``rectified_row_mismatch``)."""
     mismatch = rectified_row_mismatch(calib, frame.left, frame.right)
     if mismatch.matches < MIN_MATCHES:
-        lines.append(f"row mismatch after rectification: not measured (only {mismatch.matches} features matched "
-                     f"between the eyes in the grabbed frame; point the camera at a textured, well-lit scene)")
-    else:
-        lines.append(f"row mismatch after rectification: median {mismatch.median_px:.2f} px, 90 % under "
-                     f"{mismatch.p90_px:.2f} px ({mismatch.matches} features matched between the eyes in the "
-                     f"grabbed frame; under ~0.5 px: the file fits this camera; a few px: the wrong file, or a "
-                     f"knocked camera)")
-    return lines
+        return (f"row mismatch after rectification: not measured (only {mismatch.matches} features matched "
+                f"between the eyes in the grabbed frame; point the camera at a textured, well-lit scene)")
+    return (f"row mismatch after rectification: median {mismatch.median_px:.2f} px, 90 % under "
+            f"{mismatch.p90_px:.2f} px ({mismatch.matches} features matched between the eyes in the "
+            f"grabbed frame; under ~0.5 px: the file fits this camera; a few px: the wrong file, or a "
+            f"knocked camera)")
 
 
 # Fewer matches than this and the median says more about false matches than about the calibration.

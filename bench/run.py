@@ -12,7 +12,11 @@ Safety and bookkeeping: anything that can fail without moving (config, calibrati
 channels and pressures of the schedule) is checked before the first set-point, and the run
 folder's ``config.json`` and calibration are written before it too, so any killed run loads;
 SIGINT (Ctrl-C) and SIGTERM stop the loop, vent the valves, close the devices and finish the
-files (a signal before the first set-point sends none); a failed estimate is recorded as an
+files (a signal before the first set-point sends none); the twin's physics runs in slices of
+``SIM_SLICE_S`` simulated seconds with the stop checked between them, so a signal acts within a
+fraction of a second however long a capture interval is, and a frame whose capture began after
+the stop request is not recorded. A run expected to write more than ``DISK_CONFIRM_BYTES`` says
+so and needs ``--yes``; its size is printed before every run. A failed estimate is recorded as an
 invalid frame and the run goes on; a twin instability (``SimulationError``), a device fault,
 including one the valve bank records in the background (``ValveBank.check()``, called every
 frame: a lost link, an e-stop), or a failed write stops the run cleanly, keeping the frames so
@@ -25,6 +29,7 @@ stops the report.
 from __future__ import annotations
 
 import math
+import shutil
 import signal
 import sys
 import threading
@@ -38,11 +43,12 @@ import numpy as np
 
 from bench.config import BenchConfig, ConfigError, load_bench_config
 from bench.experiments import Schedule, make_schedule
-from bench.recording import RunWriter, jsonable, new_run_folder, summarize_run
+from bench.recording import RunWriter, frame_bytes, human_bytes, jsonable, new_run_folder, summarize_run
 from bench.scoring import (
     DEPTH_UNIT_M,
     dequantize_depth,
     estimate_fields,
+    invalid_lines,
     quantize_depth,
     score_fields,
     summary_table,
@@ -51,6 +57,8 @@ from estimator import CalibrationFileError, CenterlineEstimator, EstimateResult,
 from hardware.errors import DeviceError, EndOfStreamError, VentedBySignalError
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+# A run expected to write more than this asks for --yes first.
+DISK_CONFIRM_BYTES = 2e9
 _SIGNAL_EXIT = {signal.SIGINT: 130, signal.SIGTERM: 143}
 
 
@@ -70,6 +78,7 @@ class RunOptions:
         report: write the report at the end.
         progress: show a progress bar.
         argv: the command line, recorded in config.json.
+        yes: go ahead with a run expected to write more than ``DISK_CONFIRM_BYTES`` (``--yes``).
     """
 
     mode: str | None = None
@@ -79,6 +88,7 @@ class RunOptions:
     report: bool = True
     progress: bool = True
     argv: list[str] = field(default_factory=list)
+    yes: bool = False
 
 
 @dataclass
@@ -120,13 +130,19 @@ class _Stop:
         self.lock = threading.Lock()
         self.reason: str | None = None
         self.signum: int | None = None
+        self.requested_at: float | None = None  # time.monotonic() of the request
         self.moved = False  # a set-point was sent (or started): from then on "nothing was moved" is false
         self.closed = False  # the devices are being closed: no more set-points
 
     def request(self, reason: str, signum: int | None = None) -> None:
         if not self.event.is_set():
-            self.reason, self.signum = reason, signum
+            self.reason, self.signum, self.requested_at = reason, signum, time.monotonic()
             self.event.set()
+
+    def came_before(self, started_at: float) -> bool:
+        """Whether the stop was requested before ``started_at`` (time.monotonic): a capture started
+        after a stop request is not part of the run."""
+        return self.event.is_set() and self.requested_at is not None and self.requested_at <= started_at
 
     def command(self, valves, pressures, unless: threading.Event | None = None) -> bool:
         """Send set-points unless a stop was requested, the devices are closing, or ``unless`` is set.
@@ -205,6 +221,7 @@ class _Capture:
     depth_units: np.ndarray | None = None  # uint16, bench.scoring.DEPTH_UNIT_M
     depth_unit_m: float | None = None
     timings_ms: dict[str, float] = field(default_factory=dict)
+    started_at: float = field(default_factory=time.monotonic)  # when the capture began (time.monotonic)
 
 
 # --- the command --------------------------------------------------------------------------
@@ -220,7 +237,8 @@ def run_command(args) -> int:
     options = RunOptions(mode=getattr(args, "mode", None), compare=bool(getattr(args, "compare", False)),
                          frames=getattr(args, "frames", None),
                          out=Path(args.out) if getattr(args, "out", None) else None,
-                         report=not getattr(args, "no_report", False), argv=list(sys.argv))
+                         report=not getattr(args, "no_report", False), argv=list(sys.argv),
+                         yes=bool(getattr(args, "yes", False)))
     try:
         outcome = run_experiment(config, options)
     except RunError as e:  # after the valves moved: never "nothing was moved"
@@ -260,7 +278,8 @@ def run_experiment(config: BenchConfig, options: RunOptions) -> RunOutcome:
     cleanly and the outcome says why (``stopped``, ``exit_code``).
 
     Raises:
-        ValueError: bad options, or a schedule the valves cannot take (unknown channel, too high);
+        ValueError: bad options, or a schedule the valves cannot take (unknown channel, too high), or
+            a run expected to write more than ``DISK_CONFIRM_BYTES`` without ``options.yes``;
             before anything moves, and nothing is recorded.
         CalibrationFileError, DeviceError, OSError: a device or its calibration cannot be opened, or
             the run folder cannot be written; before anything moves.
@@ -278,6 +297,7 @@ def run_experiment(config: BenchConfig, options: RunOptions) -> RunOutcome:
         devices = make_devices(config)
         try:
             _check_schedule(schedule, devices.valves)
+            _check_disk(config, options, schedule, devices.camera.calibration.image_size)
             depth_source = _rig_depth_source(config) if config.backend == "rig" else None
             folder = options.out if options.out is not None else new_run_folder(config.recording.root)
             # config.json and the calibration before frames.jsonl: a run killed at any point loads
@@ -337,6 +357,39 @@ def _check_schedule(schedule: Schedule, valves) -> None:
                          f"{valves.max_pressure_bar:g} bar")
 
 
+def _check_disk(config: BenchConfig, options: RunOptions, schedule: Schedule, image_size) -> None:
+    """Print the run's expected disk use; refuse one above ``DISK_CONFIRM_BYTES`` without ``--yes``."""
+    per_frame = frame_bytes(config.recording, tuple(image_size), compare=options.compare,
+                            depth=config.backend == "sim" and config.recording.depth)
+    total = per_frame * schedule.frames
+    target = options.out if options.out is not None else Path(config.recording.root)
+    free = _free_bytes(Path(target))
+    room = f"; {human_bytes(free)} free there" if free is not None else ""
+    print(f"softarm run: expected disk use about {human_bytes(total)} ({schedule.frames} frames x "
+          f"{human_bytes(per_frame)}){room}", flush=True)
+    if total > DISK_CONFIRM_BYTES and not options.yes:
+        raise ValueError(f"this run would write about {human_bytes(total)} ({schedule.frames} frames x "
+                         f"{human_bytes(per_frame)}), more than {human_bytes(DISK_CONFIRM_BYTES)}{room}; to go ahead, "
+                         "run it again with --yes; or record fewer frames (--frames N, [experiment] frames) or "
+                         "JPEG frames ([recording] lossless_frames = false)")
+    if free is not None and total > free:
+        print(f"softarm run: warning: the run may fill the disk ({human_bytes(total)} expected, "
+              f"{human_bytes(free)} free); it stops cleanly, keeping its frames, when a write fails",
+              file=sys.stderr)
+
+
+def _free_bytes(folder: Path) -> float | None:
+    """Free bytes on the disk that holds ``folder`` (or its nearest existing parent); None if unknown."""
+    folder = folder.resolve()
+    for candidate in (folder, *folder.parents):
+        if candidate.exists():
+            try:
+                return float(shutil.disk_usage(candidate).free)
+            except OSError:
+                return None
+    return None
+
+
 def _run_loop(config, options, schedule, est_configs, devices, writer, depth_source, stop) -> RunOutcome:
     """Warm up, run the schedule, and always: stop the pressure thread, close the devices, finish the files.
 
@@ -366,6 +419,8 @@ def _run_loop(config, options, schedule, est_configs, devices, writer, depth_sou
                     else _rig_captures(devices, schedule, config.experiment, stop, depth_source, stats))
         try:
             for capture in captures:
+                if stop.came_before(capture.started_at):
+                    break  # captured after Ctrl-C/SIGTERM or a fault: not part of the run
                 # A fault the valves recorded in the background (a lost link, the board's watchdog
                 # vent, an e-stop) stops the run here, before a frame taken after it is recorded.
                 _check_valves(devices.valves)
@@ -567,8 +622,54 @@ def _process(capture: _Capture, estimators, calibration, totals) -> dict:
 # --- the twin -----------------------------------------------------------------------------
 
 
+# The twin is advanced in slices of at most this much simulated time, and the stop flag checked between
+# them, so Ctrl-C or SIGTERM acts within a slice (a few ms of computing) however long the capture interval
+# is; one slice is a whole number of physics steps, so the slicing does not change the simulation.
+SIM_SLICE_S = 0.05
+# settle() is called for at most this much simulated time at a time (the same checks, every 0.05 s),
+# up to the twin's usual 30 s, for the same reason.
+SETTLE_SLICE_S = 0.25
+SETTLE_MAX_S = 30.0
+
+
+def advance_sliced(twin, duration_s: float, stop: _Stop) -> bool:
+    """Advance the twin by ``duration_s`` simulated seconds (whole steps), a slice at a time.
+
+    Returns:
+        True when the whole duration was simulated, False when a stop request cut it short.
+
+    Raises:
+        SimulationError: the twin went unstable.
+    """
+    timestep_s = float(twin.sim.timestep_s)
+    steps = round(duration_s / timestep_s) if duration_s > 0 else 0
+    per_slice = max(1, int(SIM_SLICE_S / timestep_s + 1e-9))
+    while steps > 0:
+        if stop:
+            return False
+        n = min(steps, per_slice)
+        twin.advance(n * timestep_s)
+        steps -= n
+    return not stop
+
+
+def settle_sliced(twin, stop: _Stop, max_time_s: float = SETTLE_MAX_S) -> bool:
+    """Run the twin until the arm is at rest (``Twin.settle``), a slice at a time; False when it did
+    not come to rest within ``max_time_s`` simulated seconds or a stop request came first."""
+    start = twin.time_s
+    while not stop:
+        if twin.settle(max_time_s=min(SETTLE_SLICE_S, max_time_s)):
+            return True
+        if twin.time_s - start >= max_time_s - 1e-9:
+            return False
+    return False
+
+
 def _sim_captures(devices, schedule: Schedule, experiment, stop: _Stop) -> Iterator[_Capture]:
     """Advance the twin through the schedule and capture at each capture time (simulated seconds).
+
+    The physics runs in slices (``advance_sliced``), checking ``stop`` between them; a stop ends the
+    captures at once, and a capture that a stop request overtook is not handed out.
 
     Raises:
         SimulationError: the twin went unstable (the caller keeps the frames so far).
@@ -591,35 +692,38 @@ def _sim_captures(devices, schedule: Schedule, experiment, stop: _Stop) -> Itera
         return
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotSettledWarning)  # not at rest is still a true shape; said below
-        if experiment.settle and not timed_physics(twin.settle):
+        if experiment.settle and not timed_physics(settle_sliced, twin, stop) and not stop:
             print("softarm run: note: the arm did not come fully to rest before t = 0", file=sys.stderr)
-    if experiment.lead_in_s:
-        timed_physics(twin.advance, experiment.lead_in_s)
+    if experiment.lead_in_s and not timed_physics(advance_sliced, twin, experiment.lead_in_s, stop):
+        return
     origin = twin.time_s  # simulated time of t = 0
     changes = schedule.change_times_s
     next_change = 1
 
-    def advance_to(t_s: float) -> None:
-        dt = origin + t_s - twin.time_s
-        if dt > 0:
-            timed_physics(twin.advance, dt)
+    def advance_to(t_s: float) -> bool:
+        return timed_physics(advance_sliced, twin, origin + t_s - twin.time_s, stop)
 
     for i, t_capture in enumerate(schedule.capture_times_s):
         if stop:
             return
         phys["s"] = 0.0
         while next_change < len(changes) and changes[next_change] <= t_capture + 1e-9:
-            advance_to(changes[next_change])
+            if not advance_to(changes[next_change]):
+                return
             if not stop.command(valves, schedule.command(next_change)):
                 return
             if experiment.quasi_static:
                 before = twin.time_s
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", NotSettledWarning)
-                    timed_physics(twin.settle)
+                    timed_physics(settle_sliced, twin, stop)
+                if stop:
+                    return
                 origin += twin.time_s - before  # the schedule's clock stands still while the arm settles
             next_change += 1
-        advance_to(t_capture)
+        if not advance_to(t_capture):
+            return
+        started_at = time.monotonic()
         start = time.perf_counter()
         frame = camera.grab()
         depth_units = quantize_depth(camera.depth_left())
@@ -627,13 +731,16 @@ def _sim_captures(devices, schedule: Schedule, experiment, stop: _Stop) -> Itera
         start = time.perf_counter()
         gt = twin.backbone()
         truth_s = time.perf_counter() - start
+        if stop.came_before(started_at):
+            return
         sim = twin.sim
         yield _Capture(
             index=i, t_s=float(t_capture), frame=frame,
             commanded_bar={k: round(float(v), 6) for k, v in valves.setpoints_bar.items()},
             chamber_bar={k: round(float(v), 6) for k, v in zip(valves.channels, sim.chamber_bar, strict=True)},
             sim_time_s=twin.time_s, gt_m=gt, depth_units=depth_units, depth_unit_m=DEPTH_UNIT_M,
-            timings_ms={"physics": phys["s"] * 1e3, "render": render_s * 1e3, "truth": truth_s * 1e3})
+            timings_ms={"physics": phys["s"] * 1e3, "render": render_s * 1e3, "truth": truth_s * 1e3},
+            started_at=started_at)
 
 
 # --- the rig ------------------------------------------------------------------------------
@@ -711,16 +818,20 @@ def _rig_captures(devices, schedule: Schedule, experiment, stop: _Stop, depth_so
             if late:
                 stats["dropped"] += 1
                 continue
+            started_at = time.monotonic()
             start = time.perf_counter()
             frame = camera.grab()
             grab_ms = (time.perf_counter() - start) * 1e3
             t_s = time.monotonic() - t0
+            if stop.came_before(started_at):
+                break
             depth_units, unit = (None, None)
             if depth_source is not None:
                 depth_units, unit = depth_source.read(frame.index)
             yield _Capture(index=index, t_s=t_s, frame=frame,
                            commanded_bar={k: round(float(v), 6) for k, v in valves.setpoints_bar.items()},
-                           depth_units=depth_units, depth_unit_m=unit, timings_ms={"grab": grab_ms})
+                           depth_units=depth_units, depth_unit_m=unit, timings_ms={"grab": grab_ms},
+                           started_at=started_at)
             index += 1
     finally:
         driver.finish()
@@ -794,6 +905,5 @@ def _print_summary(summary: dict, folder: Path) -> None:
     else:
         print("exact: against the twin's backbone; Q': against the rendered depth at the left centerline pixels "
               "(the paper's measure; it sees the tube's surface, about one radius in front of the axis)")
-    reasons = summary.get("invalid_reasons") or {}
-    for reason, count in sorted(reasons.items(), key=lambda kv: -kv[1])[:5]:
-        print(f"invalid x{count}: {reason}")
+    for line in invalid_lines(summary, limit=5):
+        print(f"invalid: {line}")

@@ -20,6 +20,7 @@ point error of any frame, a much stricter measure.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Iterable, Mapping, Sequence
 
 import numpy as np
@@ -169,11 +170,37 @@ def summarize(records: Sequence[Mapping], *, key: str | None = None, arm_length_
     if wall_s is not None and wall_s > 0:
         out["fps_loop"] = len(results) / wall_s
     reasons: dict[str, int] = {}
+    examples: dict[str, str] = {}
     for r in results:
         if not r.get("valid"):
-            reasons[r.get("reason") or "?"] = reasons.get(r.get("reason") or "?", 0) + 1
-    out["invalid_reasons"] = reasons
+            reason = r.get("reason") or "?"
+            template = reason_template(reason)
+            reasons[template] = reasons.get(template, 0) + 1
+            examples.setdefault(template, reason)
+    out["invalid_reasons"] = reasons  # grouped by template: "implausible estimate: # mm long ..."
+    out["invalid_examples"] = examples  # the first reason of each group, measurements included
     return out
+
+
+# A measurement inside a reason: a number standing on its own ("1402 mm", "35%"), not part of a name ("s1_a").
+_MEASUREMENT = re.compile(r"(?<![\w.])[-+]?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?")
+
+
+def reason_template(reason: str) -> str:
+    """An invalid frame's reason with its measurements replaced by ``#``, so frames invalid for the same
+    cause group together: "implausible estimate: 1402 mm long" -> "implausible estimate: # mm long"."""
+    return _MEASUREMENT.sub("#", reason)
+
+
+def invalid_lines(summary: Mapping, limit: int | None = None) -> list[str]:
+    """The summary's invalid-frame groups, most frequent first: "5 x <template> (e.g. <first reason>)"."""
+    reasons = summary.get("invalid_reasons") or {}
+    examples = summary.get("invalid_examples") or {}
+    lines = []
+    for template, count in sorted(reasons.items(), key=lambda kv: -kv[1])[:limit]:
+        example = examples.get(template)
+        lines.append(f"{count} x {template}" + (f" (e.g. \"{example}\")" if example and example != template else ""))
+    return lines
 
 
 def summary_table(summary: Mapping, *, label: str = "this run", paper_mode: Mapping | None = None,

@@ -45,6 +45,7 @@ from estimator.som import linear_init, som_online
 from hardware.errors import DeviceError
 
 DEFAULT_FRAMES = 3
+MAX_STUDY_FRAMES = 1000  # each frame is trained on hundreds of times: more is hours of work
 # Table 1 of the paper.
 PAPER_TABLE1 = {"n": 20, "N": 2, "alpha0": 0.2, "lambda": 15}
 # The grids of Fig 5 (a-d).
@@ -79,9 +80,11 @@ def study_command(args) -> int:
     except ConfigError as e:
         print(f"softarm study: {e}", file=sys.stderr)
         return 2
-    n = getattr(args, "frames", None) or DEFAULT_FRAMES
-    if n < 1:
-        print(f"softarm study: --frames {n}: at least one frame is needed", file=sys.stderr)
+    n = getattr(args, "frames", None)
+    n = DEFAULT_FRAMES if n is None else n
+    if not 1 <= n <= MAX_STUDY_FRAMES:
+        print(f"softarm study: --frames {n}: expected 1 to {MAX_STUDY_FRAMES} frames (default {DEFAULT_FRAMES})",
+              file=sys.stderr)
         return 2
     which = args.which
     out = Path(args.out) if getattr(args, "out", None) else new_run_folder(config.recording.root,
@@ -460,9 +463,10 @@ def _plot_fig8(drawn: dict, rect_image: np.ndarray, mask: np.ndarray, path: Path
     skeleton = thin(mask_crop)
     fig, axes = plt.subplots(1, 3, figsize=(11, 4.5))
     axes[0].imshow(mask_crop, cmap="gray")
-    axes[0].set_title("(a) binary mask", fontsize=10)
+    # the paper's Fig 8: (a) the steps of thinning, (b) the order of the points; a1, a2 are the steps
+    axes[0].set_title("(a1) thinning: the binary mask", fontsize=10)
     axes[1].imshow(skeleton, cmap="gray")
-    axes[1].set_title("(a) thinned to one pixel", fontsize=10)
+    axes[1].set_title("(a2) thinning: one pixel wide", fontsize=10)
     axes[2].imshow(cv2.cvtColor(crop, cv2.COLOR_BGR2RGB))
     for method, colour in (("thinning", "tab:red"), ("som", "tab:green")):
         if method in drawn:
@@ -482,6 +486,8 @@ def _plot_fig8(drawn: dict, rect_image: np.ndarray, mask: np.ndarray, path: Path
 def _plot_compare_bars(per_method: dict, path: Path) -> None:
     import matplotlib.pyplot as plt
 
+    from bench.figures import plain_log_axis
+
     names = [METHOD_NAMES[m] for m in per_method]
     x = np.arange(len(names))
     fig, axes = plt.subplots(1, 3, figsize=(14, 4))
@@ -490,7 +496,7 @@ def _plot_compare_bars(per_method: dict, path: Path) -> None:
         axes[0].bar(x + offset, np.nan_to_num(values, nan=0.0), 0.4, label=f"{mode} mode pipeline")
         times = [per_method[m]["pipeline"][mode]["ms_per_frame"] for m in per_method]
         axes[2].bar(x + offset, times, 0.4, label=f"{mode} mode pipeline")
-    axes[0].set_yscale("log")
+    plain_log_axis(axes[0])
     axes[0].set_ylabel("3D RMSE vs exact backbone (mm)")
     axes[1].bar(x - 0.2, [per_method[m]["topology_error"] for m in per_method], 0.4, label="topology error (eq. 9)")
     axes[1].bar(x + 0.2, [per_method[m]["order_error"] for m in per_method], 0.4, label="order error")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -14,8 +15,12 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def interrupt_child(argv: list[str], ready: Callable[[], object], signum: int = signal.SIGINT, *,
-                    timeout_s: float = 120.0) -> tuple[int, str, str]:
+                    timeout_s: float = 120.0, timing: dict | None = None) -> tuple[int, str, str]:
     """Run ``python *argv`` in the repository, send ``signum`` once ``ready()`` holds, wait for the end.
+
+    Args:
+        timing: if given, receives ``after_signal_s``: wall-clock seconds from the signal to the
+            child's exit (a liveness figure for generous bounds, not a speed measurement).
 
     Returns:
         (exit code, stdout, stderr). The test fails, with the child's output, when ``ready`` never
@@ -30,7 +35,10 @@ def interrupt_child(argv: list[str], ready: Callable[[], object], signum: int = 
             stdout, stderr = child.communicate(timeout=30)
             raise AssertionError(f"the child never got ready (exit {child.returncode}):\n{stdout}\n{stderr}")
         child.send_signal(signum)
+        sent = time.monotonic()
         stdout, stderr = child.communicate(timeout=60)
+        if timing is not None:
+            timing["after_signal_s"] = time.monotonic() - sent
     finally:
         if child.poll() is None:
             child.kill()

@@ -64,3 +64,33 @@ def test_non_positive_views_are_refused(tmp_path, capsys, views):
     err = capsys.readouterr().err
     assert f"--views {views}: expected a positive number of board views" in err
     assert "does not exist" not in err  # refused before the camera is opened
+
+
+def test_calibrating_only_the_camera_needs_no_valve_section(tmp_path, capsys):
+    """It used to demand [rig.valves] port: the config failed to load before the camera was tried."""
+    folder = tmp_path / "rig"
+    folder.mkdir()
+    small_calibration().save(folder / "calib.toml")
+    config = folder / "bench.toml"
+    config.write_text('backend = "rig"\n[rig.camera]\nsource = "gone.mkv"\ncalibration = "calib.toml"\nfps = 30\n')
+    assert calibrate_command(args(config, out=str(tmp_path / "c.toml"))) == 1  # the camera's fault, not the config's
+    err = capsys.readouterr().err
+    assert f"{config.resolve()} [rig.camera] source: " in err and "does not exist" in err
+    assert "rig.valves" not in err
+
+
+def test_a_recording_without_a_calibration_is_opened_at_its_own_size(tmp_path, capsys):
+    """With no calibration file yet, the stand-in used to open the camera takes the recording's size (here
+    2 x 64x48), not the HD mode's, so the recording is read; it shows no board, so nothing is calibrated."""
+    from tests.fakes import write_side_by_side_video
+
+    config = rig_config(tmp_path, "session.mkv").read_text().replace('calibration = "calib.toml"',
+                                                                     'calibration = "not_yet.toml"')
+    (tmp_path / "bench.toml").write_text(config)
+    write_side_by_side_video(tmp_path / "session.mkv", side_by_side_frames(small_calibration(), 8))
+    out = tmp_path / "c.toml"
+    assert calibrate_command(args(tmp_path / "bench.toml", out=str(out))) == 1
+    captured = capsys.readouterr()
+    assert "no usable calibration to compare with" in captured.out
+    assert "frames seen: 8" in captured.err and "128x48" not in captured.err
+    assert not out.exists()

@@ -452,3 +452,26 @@ def test_rig_check_measures_the_calibration_against_the_camera(tmp_path, board, 
     assert medians["true"] < 0.2
     expected_px = 0.01 * true.K_right[1, 1]  # about 1.8 px
     assert abs(medians["tilted"] - expected_px) < 0.4 * expected_px, medians
+
+
+def test_rig_check_reports_the_devices_that_are_fine_when_the_calibration_is_missing(recorded_rig, board, capsys):
+    """It used to stop at the first failure: now the camera and the board are still opened and reported."""
+    path = write_config(recorded_rig, port=board.port, calibration="SN404.conf")
+    assert rig_command(type("Args", (), {"config": str(path)})()) == 1
+    captured = capsys.readouterr()
+    assert "calibration  FAILED: " in captured.err and "SN404.conf: calibration file not found" in captured.err
+    assert "128x48 side-by-side = 2 x 64x48" in captured.out and "grabbed frame 0: 2 x 64x48" in captured.out
+    assert "firmware softarm-emu/0.1.0" in captured.out and "e-stop released" in captured.out
+    assert "FAILED: calibration (the other devices are reported above); nothing was moved" in captured.err
+    assert "rig OK" not in captured.out
+    assert "SET" not in board.commands and board.commands["VENT"] >= 2  # connected, vented, closed
+
+
+def test_rig_check_reports_the_camera_and_calibration_when_the_board_is_silent(recorded_rig, board, capsys):
+    board.cut_link()
+    path = write_config(recorded_rig, port=board.port)
+    assert rig_command(type("Args", (), {"config": str(path)})()) == 1
+    captured = capsys.readouterr()
+    assert "valve board  FAILED: " in captured.err and "did not answer VER" in captured.err
+    assert "focal left 35.2/35.2 px" in captured.out and "grabbed frame 0: 2 x 64x48" in captured.out
+    assert "FAILED: valves (the other devices are reported above)" in captured.err

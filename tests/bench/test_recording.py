@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from bench.config import RecordingConfig
+from bench.record_schema import record_problem
 from bench.recording import FRAMES_FILE, SUMMARY_FILE, RunFolderError, RunWriter, jsonable, load_run, read_frames
 from bench.scoring import DEPTH_UNIT_M, dequantize_depth, pooled_rmse, quantize_depth, summarize, summary_table
 from tests.fakes import small_calibration
@@ -20,14 +21,18 @@ def noisy_pair(seed: int, shape=(48, 64, 3)):
 def frame_record(index: int, rmse: float, valid: bool = True) -> dict:
     errors = {"rmse_mm": rmse, "rmse_x_mm": rmse / 2, "rmse_y_mm": rmse / 3, "rmse_z_mm": rmse, "max_mm": 2 * rmse,
               "tip_mm": rmse + 1, "base_mm": 1.0, "arc_rmse_mm": rmse, "length_error_mm": -1.0}
-    return {"index": index, "t_s": 0.5 * index, "commanded_bar": {"s1_a": 0.05 * index}, "valid": valid,
+    points = [[0.0, 0.1 * k, 1.0] for k in range(3)] if valid else []
+    uv = [[32.0, 10.0 + 10 * k] for k in range(3)] if valid else []
+    return {"index": index, "t_s": 0.5 * index, "timestamp_s": 0.5 * index, "camera_index": index,
+            "commanded_bar": {"s1_a": 0.05 * index}, "chamber_bar": None, "valid": valid,
             "reason": "" if valid else "no arm found in the left image",
-            "points_m": [[0.0, 0.1 * k, 1.0] for k in range(3)] if valid else [],
-            "timings_ms": {"total": 50.0 + index, "segment": 10.0},
+            "points_m": points, "left_uv": uv, "right_uv": uv,
+            "timings_ms": {"total": 50.0 + index, "segment": 10.0}, "misalignment_px": 0.5 if valid else None,
             "errors": errors if valid else None,
             "qprime": ({"x_mm": 1.0, "y_mm": 2.0, "z_mm": 20.0, "count": 3, "rmse_mm": math.sqrt(405)}
                        if valid else None),
-            "gt_m": [[0.0, 0.0, 1.0], [0.0, 0.3, 1.0], [0.0, 0.6, 1.0]]}
+            "qprime_m": [[0.0, 0.1 * k, 0.98] for k in range(3)] if valid else None,
+            "gt_m": [[0.0, 0.0, 1.0], [0.0, 0.3, 1.0], [0.0, 0.6, 1.0]], "bench_ms": {"render": 5.0}}
 
 
 @pytest.fixture
@@ -58,7 +63,9 @@ def test_round_trip_is_exact(written_run):
     assert back.dtype == np.float32 and np.all(np.isinf(back[:10]))
     np.testing.assert_allclose(back[10:20, 30:40], 1.2346, atol=1e-6)  # 0.1 mm steps
     assert run.depth(run.frames[1]) is None
-    assert run.summary == {"frames": 4, "note": None}  # NaN is written as null: strict JSON
+    assert json.loads((folder / SUMMARY_FILE).read_text()) == {"frames": 4, "note": None}  # NaN as null: strict JSON
+    # the keys the stored summary lacks are filled in from the frames; it agreed with them, so no note
+    assert run.summary["note"] is None and run.summary["valid_frames"] == 3 and run.summary_note is None
     assert run.calibration.image_size == (64, 48)
     assert run.frames[2]["valid"] is False and run.frames[2]["errors"] is None
 
@@ -120,11 +127,37 @@ def test_not_a_run_folder_and_no_overwrite(tmp_path, written_run):
         RunWriter(started, RecordingConfig())
 
 
-def test_read_frames_skips_garbage_lines(tmp_path):
+def test_read_frames_skips_and_names_every_line_that_is_not_a_frame(tmp_path):
+    """A partial record such as {"index": 10} (a KeyError 't_s' in the report before), a wrong type, a
+    repeated index and a cut-short last line: each skipped, by line number and why; blank lines ignored."""
     path = tmp_path / FRAMES_FILE
-    path.write_text('{"index": 0}\n\n[1, 2]\nnot json\n{"index": 1}\n{"no_index": 1}\n')
+    lines = [json.dumps(frame_record(0, 1.0)), "", "[1, 2]", "not json", json.dumps(frame_record(1, 1.0)),
+             '{"index": 10}', json.dumps({**frame_record(2, 1.0), "points_m": "x"}),
+             json.dumps({**frame_record(3, 1.0), "errors": {"rmse_mm": 1.0}}), json.dumps(frame_record(1, 9.0)),
+             json.dumps({**frame_record(4, 1.0), "index": True}), json.dumps(frame_record(5, 1.0))[:40]]
+    path.write_text("\n".join(lines))  # no end of line after the last: cut short by a kill
     records, skipped = read_frames(path)
-    assert [r["index"] for r in records] == [0, 1] and skipped == 3
+    assert [r["index"] for r in records] == [0, 1] and records[1]["errors"]["rmse_mm"] == 1.0  # the first index 1
+    assert [str(s) for s in skipped] == [
+        "line 3: not a frame record: expected a JSON object, got [1, 2] (a list)",
+        "line 4: not JSON (Expecting value: line 1 column 1 (char 0))",
+        "line 6: not a frame record: missing key 't_s'",
+        "line 7: not a frame record: points_m: expected a list of [x, y, z], got 'x' (a string)",
+        "line 8: not a frame record: errors: missing key 'rmse_x_mm'",
+        "line 9: index 1 again (first on line 5); the first is kept",
+        "line 10: not a frame record: index: expected an integer >= 0, got True (a boolean)",
+        "line 11: cut short (no end of line: the run was killed while writing it)",
+    ]
+
+
+def test_every_record_the_run_writes_passes_the_schema(written_run):
+    folder, _, _ = written_run
+    run = load_run(folder)
+    assert len(run.frames) == 4 and run.skipped == []
+    assert all(record_problem(f) is None for f in run.frames)
+    assert record_problem({**run.frames[0], "paper": {**run.frames[0], "mode": "paper"}}) is None
+    assert record_problem({**run.frames[0], "paper": {**run.frames[0], "mode": "paper", "valid": "yes"}}) == (
+        "paper: valid: expected true or false, got 'yes' (a string)")
 
 
 # --- scoring --------------------------------------------------------------------------------

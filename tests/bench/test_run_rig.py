@@ -37,6 +37,7 @@ def test_rig_run_drives_the_commanded_ramp_and_vents(rig_folder, board, set_comm
     assert board.watchdog_trips == 0
     run = load_run(out)
     assert run.complete and run.backend == "rig" and not run.has_ground_truth
+    assert run.skipped == [] and run.summary_note is None  # every line a valid record; summary.json agrees
     assert len(run.frames) + run.summary["dropped_frames"] == 6
     commanded = [f["commanded_bar"]["s1_a"] for f in run.frames]
     assert commanded == sorted(commanded) and all(c in RAMP_BAR for c in commanded)
@@ -155,3 +156,31 @@ def test_a_signal_vents_closes_and_finishes_the_files(rig_folder, board, set_com
     assert f"{name}: stopping" in stderr and "report skipped" in stdout
     assert "HEAVY []" in stdout  # a rig run never loads MuJoCo, pyrender or the twin
     assert not os.path.exists(out / "report")
+
+
+def test_a_run_needing_more_than_2_gb_states_its_size_and_asks_for_yes(rig_folder, board, capsys):
+    """`--frames 100000` used to start a run of hundreds of GB without a word."""
+    out = rig_folder / "run"
+    config = rig_config(rig_folder, board.port, duration_s=200.0)
+    assert run_command(run_args(config, out, frames=100000)) == 2
+    captured = capsys.readouterr()
+    # two 320x240 eyes as lossless PNG (0.39 bytes per byte, measured) and a 10 kB record: 189.7 kB a frame
+    assert "expected disk use about 19.0 GB (100000 frames x 189.7 kB)" in captured.out
+    assert "this run would write about 19.0 GB (100000 frames x 189.7 kB), more than 2.0 GB" in captured.err
+    assert "run it again with --yes" in captured.err and "nothing was moved" in captured.err
+    assert "SET" not in board.commands and not out.exists()
+
+
+def test_yes_lets_a_large_run_go_ahead(tmp_path, capsys):
+    from bench.config import load_bench_config
+    from bench.experiments import make_schedule
+    from bench.run import RunOptions, _check_disk
+
+    config = load_bench_config()
+    schedule = make_schedule(config.experiment, frames=100000)
+    with pytest.raises(ValueError, match=r"this run would write about 219.4 GB .* run it again with --yes"):
+        _check_disk(config, RunOptions(out=tmp_path / "run"), schedule, (1280, 720))
+    _check_disk(config, RunOptions(out=tmp_path / "run", yes=True), schedule, (1280, 720))
+    assert "expected disk use about 219.4 GB (100000 frames x 2.2 MB)" in capsys.readouterr().out
+    small = make_schedule(config.experiment)  # the default run, 690 frames: no question asked
+    _check_disk(config, RunOptions(out=tmp_path / "run"), small, (1280, 720))

@@ -82,6 +82,7 @@ def test_paper_mode_stays_in_its_band(sim_run):
 def test_every_frame_is_recorded_with_truth_scores_and_images(sim_run):
     run = load_run(sim_run.folder)
     assert run.complete and [f["index"] for f in run.frames] == list(range(FRAMES))
+    assert run.skipped == [] and run.summary_note is None  # every line a valid record; summary.json agrees
     schedule = run.config["schedule"]
     np.testing.assert_allclose([f["t_s"] for f in run.frames], np.linspace(0, 58, FRAMES), atol=1e-6)
     for f in run.frames:
@@ -157,3 +158,14 @@ def test_the_run_times_its_parts(sim_run):
     assert {"physics", "render", "estimate", "record_thread"} <= set(bench_s)
     assert all(v >= 0 and math.isfinite(v) for v in bench_s.values())
     assert bench_s["render"] > 0 and bench_s["estimate"] > 0
+
+
+def test_the_disk_estimate_printed_before_a_run_matches_what_it_wrote(sim_run):
+    """The estimate `softarm run` prints (and asks --yes above 2 GB on) against the bytes of this run."""
+    from bench.config import RecordingConfig
+    from bench.recording import frame_bytes
+
+    written = sum(p.stat().st_size for p in (sim_run.folder / "frames").iterdir())
+    written += (sim_run.folder / "frames.jsonl").stat().st_size
+    estimate = FRAMES * frame_bytes(RecordingConfig(), (1280, 720), depth=True, compare=True)
+    assert 0.8 <= written / estimate <= 1.25, (written, estimate)

@@ -1,11 +1,14 @@
 """Runs that end early on the twin: killed with SIGKILL (every frame but possibly the last is kept and
 ``softarm report`` works on it), and stopped by a twin instability (clean stop, frames kept, vented)."""
 
+import json
 import signal
 import textwrap
+import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 import bench.factory
 from bench.config import DEFAULT_CONFIG, load_bench_config
@@ -102,3 +105,103 @@ def test_ctrl_c_on_the_twin_stops_and_finishes_the_files(tmp_path):
     assert 3 <= len(run.frames) < 200 and run.skipped_lines == 0
     assert [f["index"] for f in run.frames] == list(range(len(run.frames)))
     assert "SIGINT: stopping" in stderr and "report skipped" in stdout
+
+
+# Prints, after the run, what the valves were left at (the run closes them: vented, disconnected).
+VALVES_CHILD = """
+import json, sys
+import bench.factory
+opened = []
+original = bench.factory.make_devices
+
+def keep(config):
+    opened.append(original(config))
+    return opened[-1]
+
+bench.factory.make_devices = keep
+from bench.cli import main
+code = main(sys.argv[1:])
+valves = opened[-1].valves
+print("VALVES " + json.dumps({"setpoints_bar": list(valves.setpoints_bar.values()), "connected": valves.is_connected}))
+sys.exit(code)
+"""
+
+
+def long_step_config(folder: Path, duration_s: float) -> Path:
+    """A step to 1.5 bar on s2_a, then one capture at the start and one at the very end of ``duration_s``."""
+    path = folder / "bench.toml"
+    path.write_text(textwrap.dedent(f"""\
+        [sim]
+        twin = "{DEFAULT_CONFIG.parent / 'twin.toml'}"
+        [experiment]
+        kind = "step"
+        channels = ["s2_a"]
+        max_bar = 1.5
+        step_at_s = 1.0
+        duration_s = {duration_s}
+        frames = 2
+        [recording]
+        lossless_frames = false
+        depth = false
+        """))
+    return path
+
+
+@pytest.mark.parametrize(("signum", "duration_s"), [(signal.SIGINT, 600.0), (signal.SIGTERM, 86400.0)])
+def test_a_signal_during_a_long_capture_interval_stops_the_twin_at_once(tmp_path, signum, duration_s):
+    """The whole interval between the two captures is physics (600 s simulated: about half a minute of
+    computing; 24 h: over an hour): the signal must end the run within a few seconds anyway, vent the
+    valves, and the capture at the end of the interval must not be taken or recorded."""
+    out = tmp_path / "run"
+    config = long_step_config(tmp_path, duration_s)
+    first_frame_at: list[float] = []
+
+    def inside_the_interval() -> bool:
+        """A second after the first frame: the step is commanded, the twin is deep in the long interval."""
+        if not first_frame_at and frames_written(out) >= 1:
+            first_frame_at.append(time.monotonic())
+        return bool(first_frame_at) and time.monotonic() - first_frame_at[0] > 1.0
+
+    timing: dict = {}
+    code, stdout, stderr = interrupt_child(["-c", VALVES_CHILD, "run", "--config", str(config), "--out", str(out)],
+                                           inside_the_interval, signum, timing=timing)
+    name = signal.Signals(signum).name
+    assert code == {signal.SIGINT: 130, signal.SIGTERM: 143}[signum], stderr
+    assert timing["after_signal_s"] < 10.0, timing  # liveness: the interval's physics alone takes 30 s or more
+    valves = json.loads(next(line for line in stdout.splitlines() if line.startswith("VALVES "))[len("VALVES "):])
+    assert valves == {"setpoints_bar": [0.0] * 7, "connected": False}
+    run = load_run(out)
+    assert run.complete and run.summary["stopped"] == f"interrupted by {name}"
+    assert [f["index"] for f in run.frames] == [0] and run.skipped_lines == 0
+    assert f"{name}: stopping" in stderr and "report skipped" in stdout
+
+
+def test_the_twin_is_advanced_in_slices_that_add_up_to_the_same_steps(monkeypatch):
+    """The slicing is whole physics steps: the twin ends at the same step as one long advance would,
+    and a stop request between two slices leaves the rest of the interval unsimulated."""
+    from bench.run import SIM_SLICE_S, _Stop, advance_sliced
+
+    class Sim:
+        timestep_s = 0.002
+
+    class CountingTwin:
+        sim = Sim()
+
+        def __init__(self):
+            self.steps, self.calls = 0, []
+
+        def advance(self, duration_s):
+            n = round(duration_s / self.sim.timestep_s)
+            self.calls.append(n)
+            self.steps += n
+            if len(self.calls) == 3 and stop_after_three:
+                stop.request("test")
+
+    stop_after_three = False
+    twin, stop = CountingTwin(), _Stop()
+    assert advance_sliced(twin, 1.2345, stop)
+    assert twin.steps == round(1.2345 / 0.002) and max(twin.calls) <= round(SIM_SLICE_S / 0.002)
+    stop_after_three = True
+    twin = CountingTwin()
+    assert not advance_sliced(twin, 600.0, stop)
+    assert len(twin.calls) == 3 and twin.steps == 3 * round(SIM_SLICE_S / 0.002)

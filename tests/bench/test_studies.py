@@ -101,3 +101,60 @@ def test_a_study_whose_colour_range_misses_the_arm_says_so(tmp_path, capsys):
                       '[estimator]\nhsv_low = [100, 100, 50]\nhsv_high = [130, 255, 255]\n')
     assert study_command(SimpleNamespace(which="som", config=str(config), frames=1, out=str(tmp_path / "s"))) == 1
     assert "no arm found in any of the 1 study frames" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("frames", [0, -2, 1001])
+def test_a_frames_option_out_of_range_is_refused_not_replaced(tmp_path, capsys, frames):
+    """--frames 0 used to run the study on the default 3 frames without a word."""
+    out = tmp_path / "study"
+    assert study_command(SimpleNamespace(which="som", config=None, frames=frames, out=str(out))) == 2
+    assert f"--frames {frames}: expected 1 to 1000 frames (default 3)" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def _figures_saved(monkeypatch) -> list:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    saved = []
+    original = Figure.savefig
+
+    def keep(self, *args, **kwargs):
+        self.canvas.draw()
+        saved.append(self)
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(Figure, "savefig", keep)
+    return saved
+
+
+def test_fig8_panels_have_distinct_labels(tmp_path, monkeypatch):
+    import cv2
+
+    from bench.studies import _plot_fig8
+
+    saved = _figures_saved(monkeypatch)
+    mask = np.zeros((80, 120), np.uint8)
+    cv2.line(mask, (20, 10), (100, 70), 255, 9)
+    nodes = np.column_stack([np.linspace(20, 100, 8), np.linspace(10, 70, 8)])
+    _plot_fig8({"thinning": nodes[::-1], "som": nodes}, cv2.cvtColor(mask, cv2.COLOR_GRAY2BGR), mask,
+               tmp_path / "fig8.png")
+    labels = [ax.get_title().split()[0] for ax in saved[-1].axes]
+    assert labels == ["(a1)", "(a2)", "(b)"]  # the paper's (a) has two steps; no label twice
+
+
+def test_the_comparison_plot_labels_its_log_axis_with_plain_numbers(tmp_path, monkeypatch):
+    from bench.studies import _plot_compare_bars
+
+    saved = _figures_saved(monkeypatch)
+    pipeline = {"valid": 2, "frames": 2, "rmse_mm": 20.0, "max_mm": 40.0, "tip_mm": 30.0, "ms_per_frame": 50.0}
+    per_method = {m: {"topology_error": 0.0, "order_error": 0.0, "ms_2d": 5.0,
+                      "pipeline": {"paper": {**pipeline, "rmse_mm": rmse}, "default": pipeline}}
+                  for m, rmse in (("som", 15.0), ("thinning", 24.0), ("skeleton", 30.0))}
+    _plot_compare_bars(per_method, tmp_path / "bars.png")
+    ax = saved[-1].axes[0]
+    assert ax.get_yscale() == "log"
+    texts = [t.get_text() for t in ax.get_yticklabels() + ax.get_yticklabels(minor=True) if t.get_text()]
+    assert texts and all(c in "0123456789.−-" for text in texts for c in text), texts  # 20, not 2x10^1
