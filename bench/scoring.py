@@ -73,6 +73,7 @@ def estimate_fields(result: EstimateResult) -> dict:
         "right_uv": _rounded(result.right_uv, _ROUND_PX),
         "timings_ms": {k: round(float(v), _ROUND_MS) for k, v in result.timings_ms.items()},
         "misalignment_px": _finite_or_none(result.misalignment_px),
+        "flags": list(result.flags),  # plausibility checks failed (a kept frame in paper mode)
     }
 
 

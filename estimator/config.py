@@ -13,7 +13,7 @@ from estimator.som import ORDERS as SOM_ORDERS
 
 MODES = ("default", "paper")
 CENTERLINES = ("som", "competitive", "kmeans++", "thinning", "skeleton")
-COMPENSATIONS = ("none", "nearest", "windowed")
+COMPENSATIONS = ("none", "nearest", "nearest_image", "windowed")
 
 # Preset values per mode for the fields that default to None.
 _PRESETS = {
@@ -26,6 +26,9 @@ _PRESETS = {
         "extend_ends": False,
         "compensation": "nearest",
         "smoothing_degree": 6,
+        "som_time": "sample",
+        "som_order": "given",
+        "plausibility_checks": False,  # the paper reports every frame
     },
     "default": {
         "roi": True,
@@ -36,6 +39,9 @@ _PRESETS = {
         "extend_ends": True,
         "compensation": "windowed",
         "smoothing_degree": 0,  # 0: penalised spline instead of a polynomial
+        "som_time": "epoch",
+        "som_order": "shuffled",
+        "plausibility_checks": True,
     },
 }
 
@@ -61,15 +67,18 @@ class EstimatorConfig:
         base_pixel: (u, v) of the arm's base in the raw LEFT image; None means "the chain end
             nearest the top edge of the left image".
         som_alpha0, som_epochs, som_radius: Table 1 (alpha0 = 0.2, lambda = 15, N = 2).
-        som_time: what t in alpha(t) = alpha0 / (1 + t / lambda) counts: "epoch" (Remark 2 read
-            as training rounds; alpha ends near 0.1) or "sample" (every presented point).
-        som_sigma: width of the Gaussian neighbourhood eta(r) in node units; the radius
+        som_time: what t in alpha(t) = alpha0 / (1 + t / lambda) counts: "sample" (every presented
+            point; the paper preset: it reproduces the paper best, see the README's table of
+            ambiguities) or "epoch" (Remark 2 read as training rounds; alpha ends near 0.1).
+        som_sigma: width of the Gaussian neighbourhood eta(r) in node units; None ties it to the
+            radius (N / 2), so N matters beyond the nearest neighbours (Fig 5c). The radius
             N(t) = N (1 - t / lambda) shrinks and nodes beyond ceil(N(t)) are not moved.
         som_seed: seed of the per-epoch presentation order (fixed, so results are reproducible
             and independent of the order of the input points).
-        som_order: presentation order of the points in each epoch: "shuffled" (seeded, after
-            sorting: independent of the input order) or "given" (Algorithm 1's "for each P_k"
-            literally: the contour's traversal order).
+        som_order: presentation order of the points in each epoch: "given" (Algorithm 1's "for
+            each P_k" literally: the contour's traversal order; deterministic, the paper preset)
+            or "shuffled" (seeded, after sorting: independent of the input order; the result
+            then depends on ``som_seed``).
         som_shrink: shrink the neighbourhood radius N(t) = N (1 - t / lambda) (Remark 1) or keep
             it at N.
         som_compiled: run the numba-compiled SOM (True) or the numpy reference (False, paper speed).
@@ -95,8 +104,15 @@ class EstimatorConfig:
             silhouette wider than this factor times that along ``max_wide_fraction`` of the arm
             holds two overlapping parts: invalid (default mode).
         compensation: misalignment compensation: "nearest" (the paper: cubic spline on the right
-            nodes, the crossing of the left row nearest the node), "windowed" (crossings only near
-            the same arc length, disparity interpolated where the curve runs along the rows), "none".
+            nodes; of the spline's crossings of left node j's row between nodes j - 1 and j + 1,
+            the one nearest node j along the spline's parameter; none there: the node is kept),
+            "nearest_image" (of all crossings, the one nearest right node j in the image: jumps to
+            the other branch where the arm crosses a row twice), "windowed" (as "nearest", within
+            two nodes of j), "none".
+        plausibility_checks: drop frames that fail a plausibility check (a loop in the
+            silhouette, a centerline touching itself, an estimate much shorter or longer than the
+            arm, points behind the camera) as invalid (default mode), or keep them and only name
+            the checks in ``EstimateResult.flags`` (paper mode: the paper reports every frame).
         smoothing_degree: degree of the polynomial fit of the 3D curve (paper: 6); 0 selects a
             penalised cubic spline on disparity (default mode).
         roi_margin_px: margin around the previous frame's arm when processing a region of interest.
@@ -121,10 +137,10 @@ class EstimatorConfig:
     som_alpha0: float = 0.2
     som_epochs: int = 15
     som_radius: int = 2
-    som_time: str = "epoch"
-    som_sigma: float = 1.0
+    som_time: str | None = None
+    som_sigma: float | None = None
     som_seed: int = 0
-    som_order: str = "shuffled"
+    som_order: str | None = None
     som_shrink: bool = True
     som_compiled: bool = True
     som_input: str | None = None
@@ -145,6 +161,7 @@ class EstimatorConfig:
     max_length_fraction: float = 1.5
     max_width_ratio: float = 1.35
     max_wide_fraction: float = 0.08
+    plausibility_checks: bool | None = None
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -177,7 +194,9 @@ class EstimatorConfig:
         _check(self.contour_step >= 1 and self.mask_stride >= 1, "contour_step", "at least 1", self.contour_step)
         _check(self.som_epochs >= 1, "som_epochs", "at least 1", self.som_epochs)
         _check(0 < self.som_alpha0 <= 1, "som_alpha0", "a number in (0, 1]", self.som_alpha0)
-        _check(self.som_sigma > 0, "som_sigma", "a positive number", self.som_sigma)
+        _check(self.som_sigma is None or (isinstance(self.som_sigma, int | float) and not isinstance(
+            self.som_sigma, bool) and self.som_sigma > 0), "som_sigma", "a positive number or None (N / 2)",
+            self.som_sigma)
         _check(self.arm_radius_m > 0, "arm_radius_m", "a positive number of metres", self.arm_radius_m)
         _check(_int(self.smoothing_degree) and 0 <= self.smoothing_degree <= 12, "smoothing_degree",
                "an integer in [0, 12]", self.smoothing_degree)
@@ -195,7 +214,7 @@ class EstimatorConfig:
             _check(len(bp) == 2 and all(isinstance(v, int | float) for v in bp), "base_pixel", "(u, v) pixels",
                    self.base_pixel)
             object.__setattr__(self, "base_pixel", (float(bp[0]), float(bp[1])))
-        for name in ("roi", "medial_refinement", "extend_ends", "som_compiled", "som_shrink"):
+        for name in ("roi", "medial_refinement", "extend_ends", "som_compiled", "som_shrink", "plausibility_checks"):
             _check(isinstance(getattr(self, name), bool), name, "true or false", getattr(self, name))
 
     @classmethod

@@ -2,10 +2,12 @@
 
 ``compensate_nodes`` is the paper's misalignment compensation (section 4.2): a cubic spline
 through the right nodes, and for each left node the point of that spline on the left node's row.
-Taken literally, the crossing nearest the right node wins, which can jump to the other branch
-when the arm crosses a row twice (a U shape). ``match_rows`` is the default mode's version: only
-crossings near the same arc-length fraction count, and each match carries a weight that says
-how well the row pins it down (a curve running along the rows cannot be matched by row).
+Where the arm crosses a row twice (a U shape) the row has several such points; the paper does
+not say which. The one nearest node j along the spline's parameter (the same place along the
+arm) is the default; the one nearest right node j in the image (``nearest="image"``) can jump to
+the other branch. ``match_rows`` is the default mode's version: only crossings near the same
+arc-length fraction count, and each match carries a weight that says how well the row pins it
+down (a curve running along the rows cannot be matched by row).
 """
 
 from __future__ import annotations
@@ -37,8 +39,11 @@ def row_crossings(curve: np.ndarray, row: float) -> tuple[np.ndarray, np.ndarray
     return u, idx + frac
 
 
+NEAREST = ("parameter", "image")
+
+
 def compensate_nodes(left_nodes: np.ndarray, right_nodes: np.ndarray, window_nodes: float | None = None,
-                     samples_per_node: int = 50) -> np.ndarray:
+                     samples_per_node: int = 50, nearest: str = "parameter") -> np.ndarray:
     """The paper's compensation: move each right node onto its left node's row.
 
     A cubic spline runs through the right nodes (parameter: node index); for left node j, the
@@ -46,17 +51,27 @@ def compensate_nodes(left_nodes: np.ndarray, right_nodes: np.ndarray, window_nod
 
     Args:
         left_nodes, right_nodes: (n, 2) ordered SOM nodes in rectified pixels.
-        window_nodes: None takes the candidate nearest to right node j in the image (the paper,
-            literally); a number accepts only candidates within that many node indices of j and
-            takes the one nearest in index (the same place along the arm).
+        window_nodes: None accepts every candidate; a number only those within that many node
+            indices of j.
+        samples_per_node: spline samples between two nodes (where the rows are crossed).
+        nearest: which candidate wins: "parameter", the one nearest node j along the spline's
+            parameter (the same place along the arm); "image", the one nearest right node j in
+            the image (can lie on the other branch where the arm crosses a row twice).
 
     Returns:
         (n, 2) compensated right nodes W*_R; a node keeps its position when no candidate exists.
     """
+    if nearest not in NEAREST:
+        raise ValueError(f"nearest: expected one of {NEAREST}, got {nearest!r}")
+    left_nodes = np.asarray(left_nodes, dtype=np.float64)
+    right_nodes = np.asarray(right_nodes, dtype=np.float64)
+    if left_nodes.shape != right_nodes.shape or left_nodes.ndim != 2 or left_nodes.shape[1] != 2:
+        raise ValueError(f"left_nodes, right_nodes: expected two (n, 2) arrays of the same shape, got "
+                         f"{left_nodes.shape} and {right_nodes.shape}")
     n = len(right_nodes)
     spline = CubicSpline(np.arange(n), right_nodes, axis=0)
     dense = spline(np.linspace(0, n - 1, (n - 1) * samples_per_node + 1))
-    out = np.array(right_nodes, dtype=np.float64, copy=True)
+    out = right_nodes.copy()
     for j in range(n):
         u, where = row_crossings(dense, left_nodes[j, 1])
         index = where / samples_per_node
@@ -65,7 +80,7 @@ def compensate_nodes(left_nodes: np.ndarray, right_nodes: np.ndarray, window_nod
             u, index = u[near], index[near]
         if len(u) == 0:
             continue
-        if window_nodes is None:
+        if nearest == "image":
             candidates = np.column_stack([u, np.full(len(u), left_nodes[j, 1])])
             pick = int(np.argmin(np.linalg.norm(candidates - right_nodes[j], axis=1)))
         else:

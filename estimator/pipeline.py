@@ -58,6 +58,12 @@ class EstimateResult:
             parallel) and ``total`` (wall-clock time of the call).
         nodes_rect: side -> (n, 2) 2D centerline nodes in rectified pixels (for eqs. 9-11).
         misalignment_px: eq. (11) between the left and right nodes before compensation.
+        flags: names of the plausibility checks this frame failed ("holes", "self_approach",
+            "length", "behind_camera"). With ``plausibility_checks`` on (default mode) a failed
+            check makes the frame invalid; off (paper mode, which reports every frame) the frame
+            stays valid and the check is only named here.
+        points_unsmoothed: (n, 3) metres, the triangulated node pairs before the polynomial (the
+            paper's Q, paper path); (0, 3) otherwise.
     """
 
     points: np.ndarray
@@ -68,6 +74,8 @@ class EstimateResult:
     timings_ms: dict[str, float]
     nodes_rect: dict[str, np.ndarray] = field(default_factory=dict)
     misalignment_px: float = float("nan")
+    flags: tuple[str, ...] = ()
+    points_unsmoothed: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
 
 class _NoArmError(Exception):
@@ -149,6 +157,8 @@ class CenterlineEstimator:
             self._check_image(name, image)
         timings: dict[str, float] = {}
         start = time.perf_counter()
+        self._flags: list[str] = []  # plausibility checks failed in this frame (both images append)
+        self._unsmoothed = np.zeros((0, 3))
         try:
             sides = self._process_both(left_bgr, right_bgr, timings)
             self._orient_right_like_left(sides)
@@ -156,12 +166,12 @@ class CenterlineEstimator:
                 points, uv_left_rect, uv_right_rect = self._reconstruct_nodes(sides, timings)
             else:
                 points, uv_left_rect, uv_right_rect = self._reconstruct_dense(sides, timings)
-            if not np.all(np.isfinite(points)) or np.any(points[:, 2] <= 0):  # never a confident wrong answer
-                raise _NoArmError("points behind the camera (check the baseline sign in the calibration)")
+            self._check_in_front(points)
         except _NoArmError as e:
             timings["total"] = (time.perf_counter() - start) * 1e3
             empty2 = np.zeros((0, 2))
-            return EstimateResult(np.zeros((0, 3)), False, str(e), empty2, empty2, timings)
+            return EstimateResult(np.zeros((0, 3)), False, str(e), empty2, empty2, timings,
+                                  flags=tuple(dict.fromkeys(self._flags)))
         with _timed(timings, "output"):
             left_uv = self._rect.unrectify_points(uv_left_rect, "left")
             right_uv = self._rect.unrectify_points(uv_right_rect, "right")
@@ -170,7 +180,8 @@ class CenterlineEstimator:
         timings["total"] = (time.perf_counter() - start) * 1e3
         nodes = {side: sides[side].nodes for side in SIDES}
         misalignment = float(np.mean(np.abs(nodes["left"][:, 1] - nodes["right"][:, 1])))
-        return EstimateResult(points, True, "", left_uv, right_uv, timings, nodes, misalignment)
+        return EstimateResult(points, True, "", left_uv, right_uv, timings, nodes, misalignment,
+                              tuple(dict.fromkeys(self._flags)), self._unsmoothed)
 
     # --- per image ----------------------------------------------------------------------
 
@@ -211,8 +222,9 @@ class CenterlineEstimator:
             if not mask.any():
                 raise _NoArmError(f"no arm found in the {side} image")
             offset = np.array(roi[:2], dtype=np.float64)
-            if has_holes(mask, cfg.min_area_px):
-                raise _NoArmError(f"self-overlap in the {side} image: the silhouette encloses a loop")
+            with self._plausibility("holes"):
+                if has_holes(mask, cfg.min_area_px):
+                    raise _NoArmError(f"self-overlap in the {side} image: the silhouette encloses a loop")
             samples = (mask_points(mask, cfg.mask_stride) if cfg.som_input == "mask"
                        else contour_points(mask, cfg.canny_low, cfg.canny_high, cfg.contour_step))
             if len(samples) < 3:
@@ -240,7 +252,8 @@ class CenterlineEstimator:
         else:
             nodes = nodes + offset
             width = float(np.count_nonzero(mask)) / max(_polyline_length(nodes), 1.0)
-            _check_self_approach(nodes, width, cfg.max_self_approach, side)
+            with self._plausibility("self_approach"):
+                _check_self_approach(nodes, width, cfg.max_self_approach, side)
         return _Side(nodes, curve, width)
 
     def _find_roi(self, image: np.ndarray, side: str) -> tuple[int, int, int, int] | None:
@@ -277,20 +290,46 @@ class CenterlineEstimator:
         cfg = self.config
         left, right = sides["left"].nodes, sides["right"].nodes
         with _timed(timings, "match"):
-            if cfg.compensation == "nearest":
-                right = compensate_nodes(left, right)
+            if cfg.compensation == "nearest":  # the crossing nearest j along the spline, between nodes j - 1 and j + 1
+                right = compensate_nodes(left, right, window_nodes=1.0)
+            elif cfg.compensation == "nearest_image":
+                right = compensate_nodes(left, right, nearest="image")
             elif cfg.compensation == "windowed":
                 right = compensate_nodes(left, right, window_nodes=2.0)
         with _timed(timings, "triangulate"):
             points_rect = triangulate(self._rect.P["left"], self._rect.P["right"], left, right)
-            if np.any(points_rect[:, 2] <= 0):
-                raise _NoArmError("triangulated points behind the camera: left and right centerlines disagree")
             points = self._rect.to_left_camera(points_rect)
+            self._unsmoothed = points
         with _timed(timings, "smooth"):
             if cfg.smoothing_degree > 0:
                 points = polynomial_smooth(points, cfg.smoothing_degree)
-            self._check_length(points)
+            with self._plausibility("length"):
+                self._check_length(points)
         return points, left, right
+
+    @contextmanager
+    def _plausibility(self, check: str):
+        """Run one plausibility check: with ``plausibility_checks`` its failure drops the frame,
+        without it (the paper reports every frame) the check is only named in the result's flags."""
+        try:
+            yield
+        except _NoArmError:
+            if self.config.plausibility_checks:
+                raise
+            self._flags.append(check)
+
+    def _check_in_front(self, points: np.ndarray) -> None:
+        """Raise unless the estimate lies in front of the camera.
+
+        Non-finite points, or a median depth <= 0 (the whole arm behind the camera: a reversed
+        baseline), are never returned. Single points behind the camera (rows matched on the wrong
+        branch) are a plausibility check: flagged, and dropped only with ``plausibility_checks``.
+        """
+        if not np.all(np.isfinite(points)) or np.median(points[:, 2]) <= 0:  # never a confident wrong answer
+            raise _NoArmError("points behind the camera (check the baseline sign in the calibration)")
+        with self._plausibility("behind_camera"):
+            if np.any(points[:, 2] <= 0):
+                raise _NoArmError("triangulated points behind the camera: left and right centerlines disagree")
 
     def _reconstruct_dense(self, sides: dict[str, _Side], timings: dict):
         """Default path: a disparity profile along the left curve, then cap-trimmed ends."""

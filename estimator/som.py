@@ -4,18 +4,23 @@ Algorithm 1 of the paper (online SOM) is compiled with numba; a pure-numpy versi
 arithmetic stays as the reference for cross-checks and as the paper-speed baseline. The batch
 SOM is the default mode's refinement: deterministic and free of the online jitter.
 
-Choices where the paper is ambiguous (all configurable through ``EstimatorConfig``):
-- t in alpha(t) = alpha0 / (1 + t / lambda) counts epochs (one pass over the points), so alpha
-  falls from 0.2 to about 0.1 over lambda = 15 epochs; ``time="sample"`` counts single updates.
+Choices where the paper is ambiguous (all configurable through ``EstimatorConfig``; the README's
+table of the paper's ambiguities gives the measured effect of each):
+- t in alpha(t) = alpha0 / (1 + t / lambda) counts presentations (``time="sample"``, the paper
+  preset): alpha falls from 0.2 to about 0.01 within the first pass over the contour, so the
+  nodes settle instead of tracking the last few samples. ``time="epoch"`` counts passes: alpha
+  only falls to about 0.1, each node stays a moving average of its last ~10 samples and jitters
+  by a couple of pixels, which is most of the paper mode's depth error under that reading.
 - Neighbourhood radius N(t) = N (1 - t / lambda) (Remark 1: the neighbourhood shrinks); nodes with
-  |j - j*| <= ceil(N(t)) move, weighted by the Gaussian eta(r) = exp(-r^2 / (2 sigma0^2)) of
-  fixed width. Shrinking the Gaussian as well turns the last epochs into winner-take-all, and on
-  contour input the chain then zig-zags between the two edges of the arm (a lower quantization
+  |j - j*| <= ceil(N(t)) move, weighted by the Gaussian eta(r) = exp(-r^2 / (2 sigma^2)) whose
+  width is tied to N: sigma = N / 2 unless given, so a larger N pulls more neighbours along
+  (Fig 5c). The width does not shrink with N(t): a Gaussian narrowed to winner-take-all lets
+  the chain zig-zag between the two edges of the arm on contour input (a lower quantization
   error than the centre line), which is not what the paper's figures show.
-- Points are presented in a seeded random order per epoch, drawn after sorting the points, so
-  the result does not depend on the order in which the points were given (``order="shuffled"``);
-  ``order="given"`` presents them as given, every epoch (Algorithm 1's "for each P_k" read
-  literally: the contour's traversal order, which drags the chain along the contour).
+- Presentation order: ``order="given"`` presents the points in the order given, every epoch
+  (Algorithm 1's "for each P_k": the contour's traversal order; deterministic, the paper
+  preset); ``order="shuffled"`` draws a seeded permutation per epoch after sorting the points,
+  so the result does not depend on the order in which the points were given.
 - ``shrink=False`` keeps the radius N fixed instead of shrinking it.
 """
 
@@ -117,7 +122,7 @@ def _som_online_compiled(points, nodes, order, alpha0, lam, radius, sigma0, per_
 
 
 def som_online(points: np.ndarray, init: np.ndarray, *, epochs: int = 15, alpha0: float = 0.2, lam: float = 15.0,
-               radius: int = 2, sigma0: float = 1.0, seed: int = 0, time: str = "epoch",
+               radius: int = 2, sigma0: float | None = None, seed: int = 0, time: str = "epoch",
                compiled: bool = True, order: str = "shuffled", shrink: bool = True) -> np.ndarray:
     """Train the online SOM of Algorithm 1 from ``init`` (linear init or the previous frame).
 
@@ -127,7 +132,7 @@ def som_online(points: np.ndarray, init: np.ndarray, *, epochs: int = 15, alpha0
         epochs: training rounds (lambda of Table 1 when equal to ``lam``).
         alpha0, lam: learning rate alpha(t) = alpha0 / (1 + t / lam).
         radius: neighbourhood radius N at t = 0.
-        sigma0: Gaussian neighbourhood width, node units.
+        sigma0: Gaussian neighbourhood width, node units; None ties it to the radius: N / 2.
         seed: presentation order seed.
         time: "epoch" or "sample", what t counts.
         compiled: numba (True) or the numpy reference (False).
@@ -143,11 +148,24 @@ def som_online(points: np.ndarray, init: np.ndarray, *, epochs: int = 15, alpha0
         raise ValueError(f"init: expected (n, 2) nodes with n >= 2, got {nodes.shape}")
     if time not in ("epoch", "sample"):
         raise ValueError(f"time: expected 'epoch' or 'sample', got {time!r}")
+    sigma = neighbourhood_width(radius, sigma0)
     sequence = presentation_order(points, epochs, seed, order)
-    args = (float(alpha0), float(lam), float(radius), float(sigma0), time == "sample", bool(shrink))
+    args = (float(alpha0), float(lam), float(radius), sigma, time == "sample", bool(shrink))
     if compiled:
         return _som_online_compiled(points, nodes, sequence, *args)
     return _som_online_reference(points, nodes, sequence, *args)
+
+
+def neighbourhood_width(radius: float, sigma: float | None = None) -> float:
+    """The Gaussian's width in node units: ``sigma`` when given, else N / 2 (tied to the radius, so
+    N = 2 gives the classic width 1 and a larger N pulls more neighbours along)."""
+    if sigma is None:
+        if radius <= 0:
+            raise ValueError(f"radius: expected a positive neighbourhood radius N, got {radius!r}")
+        return 0.5 * float(radius)
+    if not sigma > 0:
+        raise ValueError(f"sigma0: expected a positive width in node units, got {sigma!r}")
+    return float(sigma)
 
 
 def _som_online_reference(points, nodes, order, alpha0, lam, radius, sigma0, per_sample, shrinking):

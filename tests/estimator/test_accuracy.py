@@ -2,7 +2,8 @@
 
 Default mode, cold single frames: pooled point-to-curve RMSE <= 2.5 mm, max <= 10 mm, mean tip
 error <= 10 mm. Warm 30-frame bending sequence: RMSE <= 2 mm, mean tip <= 6 mm. Paper mode, the
-reproduction baseline: RMSE <= 25 mm over the same frames.
+reproduction baseline (issue 12): RMSE <= 8 mm cold, <= 3.5 mm on the sequence, and compensation
+at most 0.7x the error without it.
 """
 
 import numpy as np
@@ -13,10 +14,11 @@ from estimator.metrics import score_against_backbone
 from tests.scenes import render_scene, u_shapes, zed_like_calibration
 
 
-def cold_scores(scenes, mode):
+def cold_scores(scenes, mode, **overrides):
     scores = {}
     for name, scene in scenes.items():
-        result = CenterlineEstimator(scene.calibration, EstimatorConfig(mode=mode)).estimate(scene.left, scene.right)
+        config = EstimatorConfig(mode=mode, **overrides)
+        result = CenterlineEstimator(scene.calibration, config).estimate(scene.left, scene.right)
         assert result.valid, f"{name}: {result.reason}"
         scores[name] = score_against_backbone(result.points, scene.gt_points)
     return scores
@@ -51,24 +53,41 @@ def test_default_mode_warm_sequence(bending_sequence):
 
 
 def test_paper_mode_stays_in_its_band(cold_scenes, bending_sequence):
-    """The reproduction baseline: <= 25 mm on each scene set the default mode's targets use.
+    """The reproduction baseline on each scene set the default mode's targets use.
 
-    Measured: cold single frames 22.0 mm pooled (raw pair 23.2, rectified pair 20.8), the warm
-    sequence 24.5 mm (OpenCV 5, numpy 2.4). The online SOM's last epochs (alpha near 0.1) leave
-    each node a few pixels off, differently in each image, and a pixel of disparity is about
-    12 mm of depth at 1 m. The band is not tuned, and it has a floor: a paper mode within a few
-    times the default mode's error would no longer reproduce the paper as written.
+    Measured with the paper preset (t in eq. 3 counting presented samples, contour order,
+    compensation by the nearest crossing along the spline's parameter): cold single frames
+    6.9 mm pooled, the warm sequence 2.8 mm (OpenCV 5, numpy 2.4); the issue's targets are 10 and
+    5 mm. Under the epoch clock they were 22.0 and 24.5 mm: each node jittered by ~2 px, and a
+    pixel of disparity is about 12 mm of depth at 1 m. The band has a floor: a paper mode as
+    good as the default mode would no longer reproduce the paper as written.
     """
     cold = list(cold_scores(cold_scenes, "paper").values())
     warm = sequence_scores(bending_sequence, "paper")
-    assert pooled(cold) <= 25.0
-    assert pooled(warm) <= 25.0
-    assert pooled(cold) >= 8.0 and pooled(warm) >= 8.0
+    assert pooled(cold) <= 8.0
+    assert pooled(warm) <= 3.5
+    assert pooled(cold) >= 3.0 and pooled(warm) >= 1.4
+
+
+def test_paper_compensation_cuts_the_error(cold_scenes):
+    """Fig 12's claim: misalignment compensation lowers the error clearly (measured 6.9 mm against
+    12.9 mm without on the cold frames: 0.54x; the issue's target is 0.7x)."""
+    with_compensation = pooled(cold_scores(cold_scenes, "paper").values())
+    without = pooled(cold_scores(cold_scenes, "paper", compensation="none").values())
+    assert with_compensation <= 0.7 * without
+
+
+def test_paper_mode_does_not_depend_on_a_seed(cold_scenes):
+    """The paper preset presents the contour in its own order: no seed enters the result."""
+    scene = cold_scenes["raw/three_d"]
+    points = [CenterlineEstimator(scene.calibration, EstimatorConfig(mode="paper", som_seed=seed))
+              .estimate(scene.left, scene.right).points for seed in (0, 5)]
+    np.testing.assert_array_equal(points[0], points[1])
 
 
 @pytest.mark.parametrize("name", sorted(u_shapes()))
 def test_default_mode_holds_where_the_arm_crosses_rows_twice(name):
-    """U shapes defeat the paper's literal compensation (it jumps branches); the default holds.
+    """U shapes defeat the paper's node-by-node stereo (measured: hook 49 mm, curl 64 mm); the default holds.
 
     Where a whole section runs along the image rows, stereo by rows sees no depth there; the
     default mode carries the depth across from its neighbours, so it degrades, but gracefully.
@@ -78,7 +97,7 @@ def test_default_mode_holds_where_the_arm_crosses_rows_twice(name):
     scene = render_scene(calib, points, joints)
     default = cold_scores({name: scene}, "default")[name]
     assert default["rmse_mm"] < 5.0 and default["tip_mm"] < 15.0
-    # the paper mode either flags the frame (its estimate is implausibly long) or is far off
+    # the paper mode reports the frame (as the paper does) and is far off, or (checks on) drops it
     paper = CenterlineEstimator(calib, EstimatorConfig(mode="paper")).estimate(scene.left, scene.right)
     if paper.valid:
         assert score_against_backbone(paper.points, scene.gt_points)["rmse_mm"] > 5 * default["rmse_mm"]

@@ -87,8 +87,8 @@ def band_contour(bend: float, half_width: float = 15.0, step: int = 4) -> tuple[
 @pytest.mark.parametrize("bend", [0.0, 0.6, -0.9])
 def test_table_1_som_on_contour_input_is_ordered_and_between_the_edges(bend):
     """The paper's input (contour points on both edges): the chain still runs base to tip down the
-    band's middle. (Presented in the contour's own traversal order, ``order="given"``, the chain
-    is dragged round the outline and folds: why the default presentation is shuffled.)"""
+    band's middle. (Presented in the contour's own traversal order under the epoch clock, the
+    chain is dragged round the outline and folds: see the next test.)"""
     points, centre = band_contour(bend)
     nodes = som_online(points, linear_init(points, 20))
     assert np.all(np.diff(nodes[:, 1]) > 0)
@@ -116,3 +116,39 @@ def test_presentation_order_covers_every_point_each_epoch():
     assert order.shape == (4, 57)
     for epoch in order:
         assert sorted(epoch) == list(range(57))
+
+
+@pytest.mark.parametrize("bend", [0.0, 0.6, -0.9])
+def test_paper_preset_som_in_contour_order_settles_ordered_inside_the_band(bend):
+    """The paper preset: t counts presented samples and the contour is presented in its own order.
+    alpha falls within the first pass, so the chain settles ordered, inside the band, with no
+    topology error; under the epoch clock the same order keeps alpha near 0.1 and the chain
+    follows the outline round and folds."""
+    points, centre = band_contour(bend)
+    nodes = som_online(points, linear_init(points, 20), time="sample", order="given")
+    assert np.all(np.diff(nodes[:, 1]) > 0) and metrics.topology_error(points, nodes) == 0.0
+    closest, _ = metrics.closest_points_on_polyline(nodes[1:-1], centre)
+    assert np.max(np.linalg.norm(nodes[1:-1] - closest, axis=1)) < 15.0
+    folded = som_online(points, linear_init(points, 20), time="epoch", order="given")
+    assert metrics.topology_error(points, folded) > 0.1
+
+
+def test_neighbourhood_width_is_tied_to_the_radius():
+    """Fig 5c: with sigma = N / 2 a larger radius pulls more neighbours towards each sample, and the
+    quantization error rises with N; with the width fixed at 1, N beyond 2 changes almost nothing."""
+    from estimator.som import neighbourhood_width
+
+    assert neighbourhood_width(2) == 1.0 and neighbourhood_width(8) == 4.0 and neighbourhood_width(8, 1.5) == 1.5
+    with pytest.raises(ValueError, match="sigma0: expected a positive width"):
+        neighbourhood_width(2, 0.0)
+    points, _ = band_contour(0.6)
+
+    def quantization(radius, sigma):
+        nodes = som_online(points, linear_init(points, 20), epochs=50, lam=50.0, radius=radius, sigma0=sigma,
+                           time="sample", order="given")
+        return metrics.quantization_error(points, nodes)
+
+    tied = [quantization(radius, None) for radius in (2, 4, 6, 8)]
+    fixed = [quantization(radius, 1.0) for radius in (2, 4, 6, 8)]
+    assert np.all(np.diff(tied) > 0.5)  # measured: 17.0, 18.1, 19.3, 20.5 px
+    assert max(fixed) - min(fixed) < 0.01 * min(fixed)  # measured: 16.99 to 17.06 px

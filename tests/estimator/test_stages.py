@@ -136,17 +136,51 @@ def test_paper_compensation_puts_right_nodes_on_left_rows():
     np.testing.assert_array_equal(out[~inside], right[~inside])  # no crossing: node kept
 
 
-def test_literal_compensation_jumps_branches_where_windowed_does_not():
-    """On a U, the crossing nearest the right node can lie on the other branch (the issue's finding)."""
+def hairpin(radius_px: float = 20.0) -> np.ndarray:
+    """A tight U: down a column, round a half circle, back up beside it (the arm crosses every row twice)."""
+    down = np.column_stack([np.full(400, 400.0), np.linspace(100, 400, 400)])
+    a = np.linspace(np.pi, 0, 400)
+    turn = np.column_stack([400 + radius_px + radius_px * np.cos(a), 400 + radius_px * np.sin(a)])
+    up = np.column_stack([np.full(400, 400.0 + 2 * radius_px), np.linspace(400, 100, 400)])
+    return np.vstack([down, turn[1:], up[1:]])
+
+
+def test_compensation_nearest_along_the_spline_stays_on_its_branch():
+    """Issue 12: the crossing nearest right node j in the image can lie on the other branch of a U
+    when the right SOM's nodes sit further along the arm; the crossing nearest j along the
+    spline's parameter does not jump there."""
+    centre = hairpin()
+    arc = np.concatenate([[0], np.cumsum(np.linalg.norm(np.diff(centre, axis=0), axis=1))])
+    s = np.linspace(0, arc[-1], 20)
+    left = np.column_stack([np.interp(s, arc, centre[:, k]) for k in range(2)])
+    slid = np.clip(s + 1.5 * (s[1] - s[0]), 0, arc[-1])  # the right nodes lie 1.5 nodes further along
+    right = np.column_stack([np.interp(slid, arc, centre[:, k]) for k in range(2)]) - [80.0, -1.5]
+
+    def jumped(out):
+        branch = np.sign(left[:, 0] - 420)  # -1 down the first column, +1 up the second
+        return set(np.flatnonzero((np.sign(out[:, 0] + 80 - 420) != branch) & (branch != 0)))
+
+    by_parameter = jumped(compensate_nodes(left, right))
+    by_image = jumped(compensate_nodes(left, right, nearest="image"))
+    assert by_parameter < by_image  # every node the parameter rule moves off its branch, the image rule moves too
+    assert 8 in by_image and 8 not in by_parameter  # node 8: both branches cross its row
+    with pytest.raises(ValueError, match="nearest: expected one of"):
+        compensate_nodes(left, right, nearest="closest")
+
+
+def test_windowed_compensation_needs_a_crossing_near_the_same_node():
+    """On a U whose right nodes lie a little further along, the right curve crosses the first left
+    row only on the far branch: without a window both rules take it, within two nodes none is."""
     t = np.linspace(0, np.pi, 20)
     left = np.column_stack([500 + 100 * np.cos(t), 300 + 200 * np.sin(t)])
-    t_right = t + 0.3 * (t[1] - t[0])  # the right SOM's nodes sit a little further along the arm
+    t_right = t + 0.3 * (t[1] - t[0])
     right = np.column_stack([420 + 100 * np.cos(t_right), 301.5 + 200 * np.sin(t_right)])
     branch = np.sign(np.cos(t))
     clear = np.abs(np.cos(t)) > 0.2  # nodes clearly on one branch
-    literal = compensate_nodes(left, right)
+    for nearest in ("parameter", "image"):
+        out = compensate_nodes(left, right, nearest=nearest)
+        assert np.sign(out[0, 0] - 420) != branch[0]
     windowed = compensate_nodes(left, right, window_nodes=2)
-    assert np.any(np.sign(literal[clear, 0] - 420) != branch[clear])
     np.testing.assert_array_equal(np.sign(windowed[clear, 0] - 420), branch[clear])
 
 
