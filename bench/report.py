@@ -5,9 +5,10 @@ is recomputed from the frames). Everything goes to ``RUN/report/``:
 
 - ``fig12_axis_error.png``: per-axis error over time, against the exact backbone (left) and
   against Q' (right, the paper's measure), for the run's estimator and for the paper mode with
-  and without misalignment compensation (Fig 12; the paper mode is re-run on
-  ``[report] compensation_frames`` recorded frames unless the run already compared it);
-- ``fig13_fps.png``: estimator frame rate over time (Fig 13);
+  the paper's compensation, with the image-nearest crossing and without compensation (Fig 12;
+  the paper mode is re-run on ``[report] compensation_frames`` recorded frames);
+- ``fig13_fps.png``: estimator frame rate over time (Fig 13): the run's estimator and the re-run
+  paper mode with the compiled SOM and with the numpy SOM (the paper's speed class);
 - ``fig10c_centerlines_3d.png``: 3D centerlines of selected frames with the ground truth (Fig 10c);
 - ``fig10ab_overlay.png``: segmentation contours and 2D centerlines of selected frames drawn on
   one camera frame, first and last in red (Fig 10a, b);
@@ -42,12 +43,22 @@ from bench.recording import (
 )
 from bench.scoring import PAPER, invalid_lines, pooled_rmse, score_fields, summary_table
 from estimator import CenterlineEstimator, EstimatorConfig
+from estimator.metrics import axis_depth_points, axis_rmse, depth_camera_points
 from estimator.segmentation import arm_mask
 
 REPORT_DIR = "report"
 _AXES = "xyz"
 _LOG_FLOOR_MM = 0.01  # errors are drawn on a log scale; an exact 0 would vanish
-_COLOURS = {"main": "tab:green", "paper": "tab:purple", "paper_nearest": "tab:orange", "paper_none": "tab:red"}
+_COLOURS = {"main": "tab:green", "paper": "tab:purple", "paper_nearest": "tab:orange", "paper_none": "tab:red",
+            "paper_nearest_image": "tab:brown", "paper_numpy": "tab:blue"}
+# Fig 12's re-run: the paper preset's compensation, the image-nearest crossing, none; and the paper preset
+# with the numpy SOM for Fig 13's speed (its estimates equal the compiled SOM's to rounding).
+_VARIANTS = {"nearest": {"compensation": "nearest"}, "nearest_image": {"compensation": "nearest_image"},
+             "none": {"compensation": "none"}, "numpy": {"compensation": "nearest", "som_compiled": False}}
+_VARIANT_LABELS = {"nearest": "with compensation (crossing nearest along the spline)",
+                   "nearest_image": "with compensation, crossing nearest in the image",
+                   "none": "no compensation", "numpy": "with compensation, numpy SOM"}
+CHECKS = ("holes", "self_approach", "length", "behind_camera")
 
 
 def report_command(args) -> int:
@@ -96,7 +107,7 @@ def write_report(run_dir: Path, *, progress: bool = False, options: Mapping | No
         write_json(out / "compensation.json", compensation)
     say("plots")
     for name, draw in (("fig12_axis_error.png", lambda p: _fig12(run, compensation, p)),
-                       ("fig13_fps.png", lambda p: _fig13(run, p)),
+                       ("fig13_fps.png", lambda p: _fig13(run, p, compensation)),
                        ("fig10c_centerlines_3d.png", lambda p: _fig10c(run, int(opts["centerline_frames"]), p)),
                        ("fig10ab_overlay.png", lambda p: _fig10ab(run, int(opts["selected_frames"]), p)),
                        ("fig11_qprime.png", lambda p: _fig11(run, p))):
@@ -140,14 +151,18 @@ def _reading_notes(run: Run, limit: int = 5) -> list[str]:
 
 
 def compensation_study(run: Run, max_frames: int) -> dict | None:
-    """Re-run the paper mode with compensation "nearest" (the paper's) and "none" on recorded frames.
+    """Re-run the paper mode on recorded frames: compensation "nearest" (the paper preset's),
+    "nearest_image" and "none", and the preset with the numpy SOM (Fig 13's paper speed).
 
     Frames are taken evenly over the run (at most ``max_frames``, lossless images only) and fed in
     order to one estimator per variant, so the SOM warm-starts from the previous frame as in a run.
+    Each valid estimate also gets Table 2 the paper's way: its unsmoothed Q (the triangulated
+    nodes) against Q' at the left nodes, with the depth the depth camera sees (the tube's surface)
+    and with the exact axis's depth (twin only).
 
     Returns:
-        ``{"frames": [index, ...], "t_s": [...], "nearest": [score fields...], "none": [...],
-        "summary": {variant: {...}}}``, or None when there is nothing to re-run.
+        ``{"frames": [index, ...], "t_s": [...], <variant>: [fields...], "summary": {variant: {...}}}``,
+        or None when there is nothing to re-run.
     """
     if max_frames <= 0:
         return None
@@ -158,9 +173,11 @@ def compensation_study(run: Run, max_frames: int) -> dict | None:
     table = run.section("bench", "estimator")
     calibration = run.calibration
     estimators = {variant: CenterlineEstimator(calibration, EstimatorConfig.from_dict(
-        {**table, "mode": "paper", "compensation": variant}, source=f"{run.path} [estimator]"))
-        for variant in ("nearest", "none")}
-    out: dict = {"frames": [], "t_s": [], "nearest": [], "none": []}
+        {**table, "mode": "paper", **overrides}, source=f"{run.path} [estimator]"))
+        for variant, overrides in _VARIANTS.items()}
+    for estimator in estimators.values():  # compile outside the timing, then start cold as a run does
+        estimator.warm_up()
+    out: dict = {"frames": [], "t_s": [], **{variant: [] for variant in _VARIANTS}}
     for record in picks:
         left, right = run.image(record, "left"), run.image(record, "right")
         if left is None or right is None:
@@ -171,15 +188,37 @@ def compensation_study(run: Run, max_frames: int) -> dict | None:
         out["t_s"].append(record["t_s"])
         for variant, estimator in estimators.items():
             result = estimator.estimate(left, right)
-            fields = {"valid": bool(result.valid), "reason": result.reason,
-                      "misalignment_px": float(result.misalignment_px) if result.valid else None}
+            fields = {"valid": bool(result.valid), "reason": result.reason, "flags": list(result.flags),
+                      "misalignment_px": float(result.misalignment_px) if result.valid else None,
+                      "timings_ms": {"total": float(result.timings_ms.get("total", math.nan))}}
             if result.valid:
                 fields.update(score_fields(result.points, result.left_uv, gt, depth, calibration))
                 fields.pop("qprime_m", None)
+                fields["table2"] = table2_fields(result, gt, depth, calibration)
             out[variant].append(fields)
     if not out["frames"]:
         return None
-    out["summary"] = {variant: _variant_summary(out[variant]) for variant in ("nearest", "none")}
+    out["summary"] = {variant: _variant_summary(out[variant]) for variant in _VARIANTS}
+    return out
+
+
+def table2_fields(result, gt_m: np.ndarray | None, depth_m: np.ndarray | None, calibration) -> dict:
+    """Table 2 per frame, the paper's way: the unsmoothed Q against Q' at the left nodes.
+
+    Returns:
+        ``{"surface": {x_mm, y_mm, z_mm, count} | None, "axis": {...} | None}``: Q' with the depth
+        map's depth (what a depth camera sees: the tube's surface), and with the exact axis's depth.
+    """
+    q = result.points_unsmoothed if len(result.points_unsmoothed) else result.points
+    out: dict = {"surface": None, "axis": None}
+    seen = np.ones(len(q), dtype=bool)
+    if depth_m is not None:
+        surface = depth_camera_points(result.left_uv, depth_m, calibration)
+        seen = np.all(np.isfinite(surface), axis=1)  # nodes off the arm have no depth: both columns skip them
+        out["surface"] = axis_rmse(q, surface)
+    if gt_m is not None:
+        axis = axis_depth_points(result.left_uv, gt_m, calibration)
+        out["axis"] = axis_rmse(q, np.where(seen[:, None], axis, np.nan))
     return out
 
 
@@ -187,13 +226,21 @@ def _variant_summary(fields: Sequence[Mapping]) -> dict:
     valid = [f for f in fields if f["valid"]]
     exact = [f["errors"] for f in valid if f.get("errors")]
     qprime = [f["qprime"] for f in valid if f.get("qprime")]
+    totals = [f["timings_ms"]["total"] for f in fields if np.isfinite(f["timings_ms"]["total"])]
+    table2 = {kind: [t[kind] for t in (f.get("table2") or {} for f in valid) if t.get(kind) and t[kind]["count"]]
+              for kind in ("surface", "axis")}
     return {
         "frames": len(fields), "valid_frames": len(valid),
+        "flagged": {check: sum(check in f.get("flags", ()) for f in fields) for check in CHECKS},
         "rmse_xyz_mm": [pooled_rmse(e[f"rmse_{a}_mm"] for e in exact) for a in _AXES],
         "rmse_mm": pooled_rmse(e["rmse_mm"] for e in exact),
+        "median_rmse_mm": float(np.median([e["rmse_mm"] for e in exact])) if exact else float("nan"),
         "qprime_rmse_xyz_mm": [pooled_rmse(q[f"{a}_mm"] for q in qprime) for a in _AXES],
+        "table2_surface_xyz_mm": [pooled_rmse(t[f"{a}_mm"] for t in table2["surface"]) for a in _AXES],
+        "table2_axis_xyz_mm": [pooled_rmse(t[f"{a}_mm"] for t in table2["axis"]) for a in _AXES],
         "misalignment_px": float(np.mean([f["misalignment_px"] for f in valid if f["misalignment_px"] is not None]))
         if valid else float("nan"),
+        "fps": 1000.0 / float(np.median(totals)) if totals else float("nan"),
     }
 
 
@@ -214,9 +261,10 @@ def _fig12(run: Run, compensation: dict | None, path: Path) -> str:
     if any("paper" in f for f in run.frames):
         series.append(("paper", "paper mode (every frame, --compare)", [f.get("paper") or {} for f in run.frames], t))
     if compensation:
-        series.append(("paper_nearest", "paper mode, with compensation (re-run)", compensation["nearest"],
-                       compensation["t_s"]))
-        series.append(("paper_none", "paper mode, no compensation (re-run)", compensation["none"], compensation["t_s"]))
+        for variant in ("nearest", "nearest_image", "none"):
+            if variant in compensation:
+                series.append((f"paper_{variant}", f"paper mode, {_VARIANT_LABELS[variant]} (re-run)",
+                               compensation[variant], compensation["t_s"]))
     for col, kind in enumerate(columns):
         for row, axis in enumerate(_AXES):
             ax = axes[row][col]
@@ -237,7 +285,12 @@ def _fig12(run: Run, compensation: dict | None, path: Path) -> str:
     axes[0][0].legend(fontsize=7, loc="upper left")
     if len(columns) > 1:
         axes[0][1].legend(fontsize=7, loc="upper left")
-    fig.suptitle("Per-axis error during the motion (Fig 12)")
+    title = "Per-axis error during the motion (Fig 12)"
+    if compensation and "nearest" in compensation["summary"]:
+        w, wo = compensation["summary"]["nearest"]["rmse_mm"], compensation["summary"]["none"]["rmse_mm"]
+        if np.isfinite(w) and np.isfinite(wo) and wo > 0:
+            title += f": paper mode {w:.1f} mm with compensation, {wo:.1f} mm without ({w / wo:.2f}x)"
+    fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -257,7 +310,7 @@ def _axis_error(fields: Mapping, kind: str, axis: str) -> float:
 # --- Fig 13: frame rate ---------------------------------------------------------------------
 
 
-def _fig13(run: Run, path: Path) -> str:
+def _fig13(run: Run, path: Path, compensation: dict | None = None) -> str:
     import matplotlib.pyplot as plt
 
     from bench.figures import plain_log_axis
@@ -271,6 +324,15 @@ def _fig13(run: Run, path: Path) -> str:
         totals = np.array([(f or {}).get("timings_ms", {}).get("total", math.nan) for f in fields], dtype=float)
         fps = 1000.0 / totals
         ax.plot(t, fps, "-", color=_COLOURS[key], linewidth=1, label=f"{label} (median {np.nanmedian(fps):.1f} fps)")
+    if compensation:
+        for variant, label in (("nearest", "paper mode, compiled SOM (re-run)"),
+                               ("numpy", "paper mode, numpy SOM (re-run)")):
+            if variant not in compensation:
+                continue
+            totals = np.array([f["timings_ms"]["total"] for f in compensation[variant]], dtype=float)
+            fps = 1000.0 / totals
+            ax.plot(compensation["t_s"], fps, ".-", color=_COLOURS[f"paper_{variant}"], linewidth=1, markersize=3,
+                    label=f"{label} (median {np.nanmedian(fps):.1f} fps)")
     if len(t) > 1 and run.backend == "rig":
         ax.plot(t[1:], 1.0 / np.maximum(np.diff(t), 1e-6), color="tab:gray", linewidth=0.8,
                 label="loop rate (capture to capture)")
@@ -551,16 +613,29 @@ def _write_markdown(run: Run, compensation: dict | None, written: Mapping[str, s
               "frames. Table 3's maximum error is the worst per-axis RMSE (5.5122 mm -> 5.5/680).",
               "- fps: 1 / the median estimator time per frame on this machine (the paper: about 10 fps "
               "including 3D plotting)."]
+    lines += _flag_lines(run, compensation)
     if compensation:
         lines += ["", "## Misalignment compensation (Fig 12)", "",
-                  f"Paper mode re-run on {len(compensation['frames'])} recorded frames (evenly spread), "
-                  "with the paper's compensation (nearest row crossing of a cubic spline) and without:", "",
-                  "| paper mode | valid | RMSE x/y/z exact (mm) | RMSE x/y/z vs Q' (mm) | misalignment eq. (11) (px) |",
-                  "|---|---|---|---|---|"]
-        for variant, label in (("nearest", "with compensation"), ("none", "no compensation")):
-            v = compensation["summary"][variant]
-            lines.append(f"| {label} | {v['valid_frames']}/{v['frames']} | {_xyz(v['rmse_xyz_mm'])} | "
+                  f"Paper mode re-run on {len(compensation['frames'])} recorded frames (evenly spread, warm start), "
+                  "with the paper's compensation (a cubic spline through the right nodes; of its crossings of left "
+                  "node j's row, the one nearest node j along the spline), with the crossing nearest right node j "
+                  "in the image, and without:", "",
+                  "| paper mode | valid | RMSE exact (mm) | median (mm) | RMSE x/y/z exact (mm) | "
+                  "RMSE x/y/z vs Q' (mm) | misalignment eq. (11) (px) |", "|---|---|---|---|---|---|---|"]
+        for variant in ("nearest", "nearest_image", "none"):
+            v = compensation["summary"].get(variant)
+            if v is None:
+                continue
+            lines.append(f"| {_VARIANT_LABELS[variant]} | {v['valid_frames']}/{v['frames']} | {_num(v['rmse_mm'])} | "
+                         f"{_num(v.get('median_rmse_mm'))} | {_xyz(v['rmse_xyz_mm'])} | "
                          f"{_xyz(v['qprime_rmse_xyz_mm'])} | {_num(v['misalignment_px'])} |")
+        summary = compensation["summary"]
+        if "nearest" in summary and np.isfinite(summary["nearest"]["rmse_mm"]) and summary["none"]["rmse_mm"] > 0:
+            ratio = summary["nearest"]["rmse_mm"] / summary["none"]["rmse_mm"]
+            lines += ["", f"With compensation the error is {ratio:.2f}x the error without (the paper: "
+                      "\"RMSE is significantly reduced in each axis\")."]
+        lines += _table2_lines(compensation)
+    lines += _speed_lines(compensation)
     bench_s = s.get("bench_s")
     wall_s = s.get("wall_s")
     if bench_s and isinstance(bench_s, dict) and all(isinstance(v, int | float) for v in bench_s.values()) \
@@ -582,6 +657,53 @@ def _write_markdown(run: Run, compensation: dict | None, written: Mapping[str, s
             lines.append(f"- {name}: {note}")
     lines += ["", f"_report written in {elapsed_s:.1f} s by `softarm report {run.path}`_", ""]
     path.write_text("\n".join(lines), encoding="utf-8")
+
+
+def _flag_lines(run: Run, compensation: dict | None) -> list[str]:
+    """How many frames each plausibility check flagged: dropped with the checks on (default mode),
+    kept and only named with them off (paper mode, which reports every frame as the paper does)."""
+    columns = [("this run's estimator", run.frames)]
+    if any("paper" in f for f in run.frames):
+        columns.append(("paper mode (--compare)", [f.get("paper") or {} for f in run.frames]))
+    if compensation and "nearest" in compensation:
+        columns.append(("paper mode (re-run)", compensation["nearest"]))
+    if not any(f.get("flags") for _, fields in columns for f in fields):
+        return ["", "## Plausibility checks", "", "No frame failed a plausibility check "
+                "(a loop in the silhouette, a centerline touching itself, an implausible length, points behind the "
+                "camera)."]
+    lines = ["", "## Plausibility checks", "",
+             "Frames each check flagged. The default mode drops a flagged frame (invalid); the paper mode keeps it "
+             "and only names the check, as the paper reports every frame.", "",
+             "| check | " + " | ".join(name for name, _ in columns) + " |", "|---|" + "---|" * len(columns)]
+    for check in CHECKS:
+        counts = [f"{sum(check in (f.get('flags') or ()) for f in fields)}/{len(fields)}" for _, fields in columns]
+        lines.append(f"| {check} | " + " | ".join(counts) + " |")
+    return lines
+
+
+def _table2_lines(compensation: dict) -> list[str]:
+    v = compensation["summary"].get("nearest")
+    if v is None or not any(np.isfinite(x) for x in v["table2_surface_xyz_mm"] + v["table2_axis_xyz_mm"]):
+        return []
+    return ["", "## Table 2 computed the paper's way", "",
+            "The paper mode's unsmoothed Q (the triangulated nodes, before the 6th-degree polynomial) against Q' "
+            "at its left nodes, per axis, pooled over the re-run frames: with the depth a depth camera sees (the "
+            "tube's surface, about one radius in front of the axis, as the paper's ZED saw it) and with the exact "
+            "axis's depth (twin only).", "",
+            "| Q' from | x (mm) | y (mm) | z (mm) |", "|---|---|---|---|",
+            "| surface depth (the paper's measure) | " + " | ".join(_num(x) for x in v["table2_surface_xyz_mm"]) + " |",
+            "| axis depth | " + " | ".join(_num(x) for x in v["table2_axis_xyz_mm"]) + " |",
+            "| Zou et al., Table 2 | " + " | ".join(f"{x:.4f}" for x in PAPER["rmse_xyz_mm"]) + " |"]
+
+
+def _speed_lines(compensation: dict | None) -> list[str]:
+    if not compensation or "numpy" not in compensation["summary"]:
+        return []
+    s = compensation["summary"]
+    return ["", "## Paper mode speed (Fig 13)", "",
+            "| paper mode | fps (1 / median time per frame) |", "|---|---|",
+            f"| compiled SOM | {_num(s['nearest']['fps'], 1)} |", f"| numpy SOM (the paper's speed class) | "
+            f"{_num(s['numpy']['fps'], 1)} |", f"| Zou et al. | about {PAPER['fps']:g} |"]
 
 
 def _num(value, decimals: int = 2) -> str:

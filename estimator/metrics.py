@@ -114,6 +114,39 @@ def depth_camera_points(uv_left_raw: np.ndarray, depth_left_m: np.ndarray,
     return np.column_stack([rays[:, 0] * z, rays[:, 1] * z, z])
 
 
+def axis_depth_points(uv_left_raw: np.ndarray, backbone_m: np.ndarray, calibration: StereoCalibration,
+                      samples: int = 2000) -> np.ndarray:
+    """Q' with the axis's depth instead of the surface's: back-project left pixels at the depth of
+    the exact backbone point seen nearest to each pixel.
+
+    The paper's Q' reads the depth camera at the centerline pixels, which sees the tube's surface,
+    about one radius in front of the axis; this variant (twin only: it needs the exact backbone)
+    takes that offset out of Table 2's z column.
+
+    Args:
+        uv_left_raw: (n, 2) raw left pixels.
+        backbone_m: (N, 3) exact backbone, left camera frame, metres, N >= 2.
+        calibration: the left intrinsics and distortion.
+        samples: backbone points (evenly along it) the nearest one is chosen from.
+
+    Returns:
+        (n, 3) points in the left camera frame, metres.
+    """
+    uv = _as2d(uv_left_raw, "uv_left_raw")
+    backbone = _as2d(backbone_m, "backbone_m", 3)
+    if len(backbone) < 2:
+        raise ValueError("backbone_m: expected at least two points")
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(backbone, axis=0), axis=1))])
+    at = np.linspace(0.0, arc[-1], samples)
+    dense = np.column_stack([np.interp(at, arc, backbone[:, k]) for k in range(3)])
+    seen = calibration.project(dense, "left")
+    nearest = np.argmin(((uv[:, None, :] - seen[None, :, :]) ** 2).sum(axis=2), axis=1)
+    z = dense[nearest, 2]
+    rays = cv2.undistortPoints(uv.reshape(-1, 1, 2), calibration.K_left, calibration.dist_left.reshape(1, -1))
+    rays = rays.reshape(-1, 2)
+    return np.column_stack([rays[:, 0] * z, rays[:, 1] * z, z])
+
+
 def axis_rmse(points: np.ndarray, reference: np.ndarray) -> dict[str, float]:
     """Per-axis RMSE between corresponding points (the paper's Table 2 measure), millimetres.
 
