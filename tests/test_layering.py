@@ -18,7 +18,8 @@ REPO = Path(__file__).resolve().parents[1]
 ALLOWED = {
     "estimator": {"estimator", "numpy", "cv2", "scipy", "numba"},
     "hardware": {"estimator", "hardware", "numpy", "cv2", "serial"},
-    "twin": {"estimator", "hardware", "twin", "numpy", "cv2", "scipy", "mujoco", "pyrender", "trimesh", "OpenGL"},
+    "twin": {"estimator", "hardware", "twin", "numpy", "cv2", "scipy", "numba", "mujoco", "pyrender", "trimesh",
+             "OpenGL"},
 }
 
 # package -> imported package -> the only modules of it that package may import (all others refused).

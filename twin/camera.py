@@ -16,6 +16,7 @@ from hardware.errors import DeviceError, NotConnectedError
 from hardware.interfaces import StereoCamera, StereoFrame
 from twin.render import StereoRenderer
 from twin.rig import StereoRig
+from twin.scene import LabScene
 from twin.shape import ArmShape
 
 
@@ -28,13 +29,15 @@ class SimStereoCamera(StereoCamera):
         clock_s: returns the current simulated time, seconds (the frames' timestamps).
         seed: sensor-noise seed; frames are reproducible for a seed and a sequence of shapes.
         tube_sides: vertices around the rendered tube.
+        scene: what surrounds the arm (backdrop, objects, lights, camera effects); None: the clean scene.
 
     The OpenGL context is created by ``connect()`` and released by ``close()``.
     """
 
     def __init__(self, rig: StereoRig, shape_source: Callable[[], ArmShape], clock_s: Callable[[], float], *,
-                 seed: int = 0, tube_sides: int = 48) -> None:
+                 seed: int = 0, tube_sides: int = 48, scene: LabScene | None = None) -> None:
         self._rig = rig
+        self._scene = scene
         self._shape_source = shape_source
         self._clock_s = clock_s
         self._seed = int(seed)
@@ -44,6 +47,12 @@ class SimStereoCamera(StereoCamera):
         self._index = 0
         self._last_depth: np.ndarray | None = None
         self._last_shape: ArmShape | None = None
+        self._last_time_s: float | None = None
+
+    @property
+    def scene(self) -> LabScene | None:
+        """The lab scene the camera sees (None: the clean scene)."""
+        return self._scene
 
     @property
     def calibration(self) -> StereoCalibration:
@@ -79,11 +88,13 @@ class SimStereoCamera(StereoCamera):
         if self._renderer is not None:
             raise DeviceError(f"{type(self).__name__}: already connected; close() it before connecting again")
         # A new connection continues the noise sequence rather than repeating the first one's.
-        self._renderer = StereoRenderer(self._rig, seed=self._seed + self._connections, tube_sides=self._tube_sides)
+        self._renderer = StereoRenderer(self._rig, seed=self._seed + self._connections, tube_sides=self._tube_sides,
+                                        scene=self._scene)
         self._connections += 1
         self._index = 0
         self._last_depth = None
         self._last_shape = None
+        self._last_time_s = None
 
     def grab(self) -> StereoFrame:
         """Render the arm as it is now.
@@ -98,11 +109,15 @@ class SimStereoCamera(StereoCamera):
         if self._renderer is None:
             raise NotConnectedError(f"{type(self).__name__}: grab() before connect()")
         shape = self._shape_source()
-        images = self._renderer.render(shape, depth=True)
-        frame = StereoFrame(images.left, images.right, float(self._clock_s()), self._index)
+        t_s = float(self._clock_s())
+        # The previous frame's shape lets the renderer blur the arm's motion over the exposure.
+        previous = None if self._last_shape is None else (self._last_shape, self._last_time_s)
+        images = self._renderer.render(shape, depth=True, t_s=t_s, previous=previous)
+        frame = StereoFrame(images.left, images.right, t_s, self._index)
         self._index += 1
         self._last_depth = images.depth_left_m
         self._last_shape = shape
+        self._last_time_s = t_s
         return frame
 
     def depth_left(self) -> np.ndarray:

@@ -33,10 +33,13 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")  # must precede the first impo
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-from scipy.special import ndtri  # noqa: E402
 
+from twin.lab_objects import Part, scene_parts  # noqa: E402
+from twin.meshes import Prop, pose_with_z, rotation_minimising_frames, tube_surface  # noqa: E402, F401
 from twin.rig import SensorModel, StereoRig  # noqa: E402
-from twin.shape import ArmShape  # noqa: E402
+from twin.scene import LabScene, SceneObject, clean_scene, temperature_rgb  # noqa: E402
+from twin.sensor import CameraEffects, SensorSimulator  # noqa: E402
+from twin.shape import ArmShape, Plate  # noqa: E402
 
 _SIDES = ("left", "right")
 _ZNEAR_M, _ZFAR_M = 0.02, 20.0
@@ -52,7 +55,12 @@ _DIELECTRIC_F0 = 0.04  # pyrender's own PBR shader: diffuse colour = base * (1 -
 # Uniform and input names are pyrender's (mesh.vert feeds it; unused uniforms are skipped).
 _MATTE_FRAG = """#version 330 core
 struct DirectionalLight { vec3 color; float intensity; vec3 direction; };
-struct Material { vec3 emissive_factor; vec4 base_color_factor; float metallic_factor; float roughness_factor; };
+struct Material {
+    vec3 emissive_factor; vec4 base_color_factor; float metallic_factor; float roughness_factor;
+#ifdef HAS_BASE_COLOR_TEX
+    sampler2D base_color_texture;
+#endif
+};
 uniform Material material;
 uniform DirectionalLight directional_lights[MAX_DIRECTIONAL_LIGHTS];
 uniform int n_directional_lights;
@@ -60,6 +68,9 @@ uniform vec3 ambient_light;
 in vec3 frag_position;
 #ifdef NORMAL_LOC
 in vec3 frag_normal;
+#endif
+#ifdef TEXCOORD_0_LOC
+in vec2 uv_0;
 #endif
 out vec4 frag_color;
 void main()
@@ -72,7 +83,13 @@ void main()
         light += directional_lights[i].color * directional_lights[i].intensity * nl;
     }
 #endif
-    vec3 colour = clamp(material.base_color_factor.rgb * light, 0.0, 1.0);
+    vec3 base = material.base_color_factor.rgb;
+#ifdef HAS_BASE_COLOR_TEX
+#ifdef TEXCOORD_0_LOC
+    base *= pow(texture(material.base_color_texture, uv_0).rgb, vec3(2.2));  // display -> linear
+#endif
+#endif
+    vec3 colour = clamp(base * light, 0.0, 1.0);
     frag_color = vec4(pow(colour, vec3(1.0 / 2.2)), 1.0);
 }
 """
@@ -170,114 +187,6 @@ def _eye_rays_cached(K_bytes: bytes, dist_bytes: bytes, size: tuple[int, int]) -
     return x, y
 
 
-def _noise_table(std_dn: float) -> np.ndarray:
-    """256 equiprobable Gaussian quantiles scaled to standard deviation ``std_dn``.
-
-    Indexing it with uniform random bytes (``cv2.LUT``) draws Gaussian noise about four times
-    faster than ``numpy``'s normal generator; 256 levels are plenty for 8-bit images.
-    """
-    q = ndtri((np.arange(256) + 0.5) / 256.0)
-    q = q / np.sqrt(np.mean(q**2))
-    return (q * std_dn).astype(np.float32).reshape(1, 256)
-
-
-def rotation_minimising_frames(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Tangents and rotation-minimising normal/binormal along a polyline (double reflection).
-
-    Wang, Juettler, Zheng, Liu (2008), "Computation of rotation minimizing frames", algorithm 1.
-
-    Args:
-        points: (N, 3), N >= 2, consecutive points distinct.
-
-    Returns:
-        t, n, b: three (N, 3) arrays of unit vectors; (n, b, t) is right-handed at every point.
-    """
-    p = np.asarray(points, dtype=np.float64)
-    seg = np.diff(p, axis=0)
-    seg_len = np.linalg.norm(seg, axis=1)
-    if np.any(seg_len <= 1e-12):
-        raise ValueError("points: consecutive backbone points coincide")
-    seg /= seg_len[:, None]
-    t = np.empty_like(p)
-    t[0], t[-1] = seg[0], seg[-1]
-    t[1:-1] = seg[1:] + seg[:-1]
-    t /= np.linalg.norm(t, axis=1)[:, None]
-    # First normal: the world axis least aligned with the first tangent, made perpendicular.
-    a = np.eye(3)[np.argmin(np.abs(t[0]))]
-    r = a - np.dot(a, t[0]) * t[0]
-    r /= np.linalg.norm(r)
-    n = np.empty_like(p)
-    n[0] = r
-    for i in range(len(p) - 1):
-        v1 = p[i + 1] - p[i]
-        c1 = float(v1 @ v1)
-        r_l = n[i] - (2.0 / c1) * float(v1 @ n[i]) * v1
-        t_l = t[i] - (2.0 / c1) * float(v1 @ t[i]) * v1
-        v2 = t[i + 1] - t_l
-        c2 = float(v2 @ v2)
-        n[i + 1] = r_l if c2 < 1e-30 else r_l - (2.0 / c2) * float(v2 @ r_l) * v2
-    # Remove round-off drift from orthogonality.
-    n -= np.sum(n * t, axis=1)[:, None] * t
-    n /= np.linalg.norm(n, axis=1)[:, None]
-    b = np.cross(t, n)
-    return t, n, b
-
-
-def tube_surface(points: np.ndarray, radius: np.ndarray, sides: int,
-                 caps: tuple[bool, bool] = (True, True)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A smooth tube swept along a backbone, with flat end caps.
-
-    Args:
-        points: (N, 3) backbone, metres.
-        radius: (N,) tube radius at each point, metres.
-        sides: vertices around each ring.
-        caps: whether to close the (start, end) of the tube with a flat disc.
-
-    Returns:
-        positions (V, 3) float32, normals (V, 3) float32 (outward, unit), faces (F, 3) uint32
-        with counter-clockwise winding seen from outside.
-    """
-    p = np.asarray(points, dtype=np.float64)
-    rad = np.asarray(radius, dtype=np.float64)
-    t, n, b = rotation_minimising_frames(p)
-    theta = np.linspace(0.0, 2.0 * math.pi, sides, endpoint=False)
-    cos, sin = np.cos(theta), np.sin(theta)
-    radial = cos[None, :, None] * n[:, None, :] + sin[None, :, None] * b[:, None, :]  # (N, S, 3)
-    ring = p[:, None, :] + rad[:, None, None] * radial
-    # The surface normal tilts against the tangent where the radius changes: n ~ radial - r'(s) t.
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
-    drds = np.gradient(rad, s) if len(p) > 2 else np.full(len(p), (rad[-1] - rad[0]) / s[-1])
-    normal = radial - drds[:, None, None] * t[:, None, :]
-    normal /= np.linalg.norm(normal, axis=2)[..., None]
-    N, S = len(p), sides
-    positions = [ring.reshape(-1, 3)]
-    normals = [normal.reshape(-1, 3)]
-    i = np.arange(N - 1)[:, None]
-    j = np.arange(S)[None, :]
-    a0 = i * S + j
-    a1 = i * S + (j + 1) % S
-    b0 = a0 + S
-    b1 = a1 + S
-    # (n, b, t) right-handed: going around by +theta and along +t, the quad (a0, a1, b1, b0)
-    # has its outward normal along radial when wound a0 -> a1 -> b1.
-    faces = [np.stack([a0, a1, b1], -1).reshape(-1, 3), np.stack([a0, b1, b0], -1).reshape(-1, 3)]
-    count = N * S
-    for end, keep in zip((0, N - 1), caps, strict=True):
-        if not keep:
-            continue
-        outward = -t[end] if end == 0 else t[end]
-        centre = count
-        positions.append(np.vstack([p[end][None], ring[end]]))
-        normals.append(np.repeat(outward[None], S + 1, axis=0))
-        rim = centre + 1 + np.arange(S)
-        nxt = centre + 1 + (np.arange(S) + 1) % S
-        tri = np.stack([np.full(S, centre), nxt, rim], -1) if end == 0 else np.stack([np.full(S, centre), rim, nxt], -1)
-        faces.append(tri)
-        count += S + 1
-    return (np.vstack(positions).astype(np.float32), np.vstack(normals).astype(np.float32),
-            np.vstack(faces).astype(np.uint32))
-
-
 def _keep_egl_display(platform) -> None:
     """Make a pyrender EGL platform release only its own context.
 
@@ -306,45 +215,25 @@ def _linear(rgb_display: Sequence[float]) -> np.ndarray:
     return np.asarray(rgb_display, dtype=np.float64)[::-1] ** _GAMMA
 
 
-def _pose_with_z(z_axis: np.ndarray, origin: np.ndarray) -> np.ndarray:
-    z = np.asarray(z_axis, float) / np.linalg.norm(z_axis)
-    a = np.eye(3)[np.argmin(np.abs(z))]
-    x = np.cross(a, z)
-    x /= np.linalg.norm(x)
-    T = np.eye(4)
-    T[:3, :3] = np.column_stack([x, np.cross(z, x), z])
-    T[:3, 3] = origin
-    return T
-
-
-@dataclass(frozen=True, eq=False)
-class Prop:
-    """An extra object in the scene (e.g. a calibration board): one or more triangle meshes.
-
-    Attributes:
-        parts: tuples (positions (V, 3), normals (V, 3), faces (F, 3), display RGB colour) in the
-            prop's own frame, metres.
-        T_world_prop: (4, 4) pose of the prop in the world.
-    """
-
-    parts: tuple[tuple[np.ndarray, np.ndarray, np.ndarray, tuple[float, float, float]], ...]
-    T_world_prop: np.ndarray
-
-
 class StereoRenderer:
     """Render raw stereo pairs of an :class:`ArmShape` (and optional props) seen by a :class:`StereoRig`.
 
-    One OpenGL context, scene and canvas are reused; per frame only the tube mesh is rebuilt
-    and the plates re-posed.
+    One OpenGL context, scene and canvas are reused. The static part of a lab scene (the wall,
+    the floor, objects that do not move) is rendered once per eye; per frame only the rectangle
+    holding the arm, the moving objects and the props is drawn again, so a cluttered scene costs
+    little more than an empty one.
 
     Args:
-        rig: the cameras, their calibration, pose and the scene's appearance.
+        rig: the cameras, their calibration, pose and the default appearance.
         seed: seed of the sensor-noise generator (frames are reproducible for a given seed).
         tube_sides: vertices around the tube (48 keeps the polygon within 0.05 px of a circle).
         sensor: overrides ``rig.sensor`` (e.g. noise-free renders for measurements).
         fast_readback: draw and read only the rectangle holding the objects (scissor test) and
             read depth only where needed; ``False`` uses pyrender's own full read-back (slower,
             kept as a reference and a fallback).
+        scene: what surrounds the arm (:class:`twin.scene.LabScene`); None is the clean scene
+            (camera.toml's uniform background, lights and sensor).
+        effects: overrides the camera effects the scene and the sensor give.
 
     Raises:
         RenderBackendError: no offscreen OpenGL (EGL) is available; the message names the
@@ -352,14 +241,16 @@ class StereoRenderer:
     """
 
     def __init__(self, rig: StereoRig, *, seed: int = 0, tube_sides: int = 48,
-                 sensor: SensorModel | None = None, fast_readback: bool = True) -> None:
+                 sensor: SensorModel | None = None, fast_readback: bool = True, scene: LabScene | None = None,
+                 effects: CameraEffects | None = None) -> None:
         if tube_sides < 8:
             raise ValueError(f"tube_sides: expected at least 8, got {tube_sides}")
         self.rig = rig
+        self.scene = scene if scene is not None else clean_scene()
         self.sensor = rig.sensor if sensor is None else sensor
+        self.effects = effects if effects is not None else self.scene.effects(self.sensor)
         self.tube_sides = int(tube_sides)
         self._rng = np.random.default_rng(seed)
-        self._noise_lut = _noise_table(self.sensor.noise_std_dn)
         self.timings_s: dict[str, float] = {}
         self._pyrender, self._GL = _gl()
         pyrender = self._pyrender
@@ -379,19 +270,26 @@ class StereoRenderer:
         self._eyes: dict[str, _Eye] = {}
         self._canvas_size = (0, 0)
         self._build_canvas(per_eye, lo, hi)
+        self._sensors = {side: SensorSimulator(self.effects, calib.K(side), calib.image_size, self._rng)
+                         for side in _SIDES}
 
         # --- the scene --------------------------------------------------------------------
         look = rig.appearance
-        self._scene = pyrender.Scene(bg_color=np.append(np.asarray(look.background_rgb)[::-1], 1.0),
-                                     ambient_light=np.full(3, look.ambient))
+        backdrop = self.scene.backdrop
+        background = look.background_rgb if backdrop is None else backdrop.surface.rgb
+        ambient, lights = self._lights()
+        self._scene = pyrender.Scene(bg_color=np.append(np.asarray(background)[::-1], 1.0), ambient_light=ambient)
         self._camera_nodes = {}
         for side in _SIDES:
             K = self._eyes[side].K_canvas
             camera = pyrender.IntrinsicsCamera(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2] + 0.5, cy=K[1, 2] + 0.5,
                                                znear=_ZNEAR_M, zfar=_ZFAR_M)
             self._camera_nodes[side] = self._scene.add(camera, pose=rig.T_world_cam_gl(side), name=f"cam_{side}")
-        self._light = pyrender.DirectionalLight(color=np.ones(3), intensity=look.directional)
-        self._scene.add(self._light, pose=_pose_with_z(-np.asarray(look.light_direction_world), np.zeros(3)))
+        self._lights_gl = []
+        for colour_bgr, intensity, direction in lights:
+            light = pyrender.DirectionalLight(color=colour_bgr, intensity=intensity)
+            self._scene.add(light, pose=pose_with_z(-np.asarray(direction), np.zeros(3)))
+            self._lights_gl.append(light)
         self._arm_material = self._material(look.arm_rgb)
         self._plate_material = self._material(look.plate_rgb)
         self._tube_node = None
@@ -400,6 +298,16 @@ class StereoRenderer:
         self._prop_nodes: list = []
         self._arm_vertices: list[np.ndarray] = []
         self._prop_vertices: list[np.ndarray] = []
+        world, static, moving = scene_parts(self.scene)
+        for part in world:
+            self._scene.add(self._part_mesh(part), name="backdrop")
+        for obj, parts in static:
+            for part in parts:
+                self._scene.add(self._part_mesh(part), pose=obj.T_world(0.0), name=obj.name)
+        self._moving: list[tuple[SceneObject, list, list[np.ndarray]]] = []
+        for obj, parts in moving:
+            nodes = [self._scene.add(self._part_mesh(part), pose=obj.T_world(0.0), name=obj.name) for part in parts]
+            self._moving.append((obj, nodes, [part.positions.astype(np.float64) for part in parts]))
         try:
             self._renderer = pyrender.OffscreenRenderer(*self._canvas_size)
         except Exception as e:  # EGL missing devices/drivers surface as many exception types
@@ -410,21 +318,53 @@ class StereoRenderer:
         if hasattr(self._renderer._renderer, "_program_cache"):
             self._renderer._renderer._program_cache = _matte_program_cache(pyrender)
         else:  # pyrender's PBR shader: its Lambert term is radiance * 0.96 * cos / pi
-            self._light.intensity = look.directional * math.pi / (1.0 - _DIELECTRIC_F0)
+            for light in self._lights_gl:
+                light.intensity = light.intensity * math.pi / (1.0 - _DIELECTRIC_F0)
         self._fast_readback = fast_readback and all(
             hasattr(self._renderer._renderer, a) for a in ("_main_fb", "_main_fb_ms", "_read_main_framebuffer"))
         if self._fast_readback:
             self._want_depth = True
             self._rect = (0, 0, *self._canvas_size)
             self._renderer._renderer._read_main_framebuffer = self._read_framebuffer
-            # The background everywhere outside the drawn objects' bounding box: one empty render.
-            self._set_arm(None)
-            self._canvas = {}
-            for side in _SIDES:
-                self._scene.main_camera_node = self._camera_nodes[side]
-                colour, zbuf = self._renderer.render(self._scene)
-                self._canvas[side] = [colour.copy(), zbuf.copy(), None]  # colour, depth, last rect
-            self._background_px = self._canvas["left"][0][0, 0].copy()
+            self._render_static()
+
+    def _lights(self) -> tuple[np.ndarray, list[tuple[np.ndarray, float, np.ndarray]]]:
+        """Ambient colour and (colour, intensity, direction) of each light, colours in BGR order."""
+        lighting = self.scene.lighting
+        if lighting is None:
+            look = self.rig.appearance
+            return np.full(3, look.ambient), [(np.ones(3), look.directional,
+                                               np.asarray(look.light_direction_world, float))]
+        ambient = lighting.ambient * temperature_rgb(lighting.ambient_temperature_k)[::-1]
+        lights = [(temperature_rgb(light.temperature_k)[::-1], light.intensity,
+                   np.asarray(light.direction_world, float)) for light in lighting.lights]
+        return ambient, lights
+
+    def _render_static(self) -> None:
+        """Render the static scene once per eye: the canvas, the raw image and the left depth behind
+        everything that moves; per frame only the rectangle around what moves is drawn again."""
+        self._set_arm(None)
+        self._show_moving(False)
+        self._canvas = {}
+        self._static_canvas = {}
+        for side in _SIDES:
+            self._scene.main_camera_node = self._camera_nodes[side]
+            colour, zbuf = self._renderer.render(self._scene)
+            self._canvas[side] = [colour.copy(), zbuf.copy(), None]  # colour, depth, last rect
+            self._static_canvas[side] = (colour.copy(), zbuf.copy())
+        self._show_moving(True)
+        self._static_raw = {}
+        self._static_done = {}
+        for side in _SIDES:
+            eye = self._eyes[side]
+            raw = cv2.remap(self._static_canvas[side][0], eye.map1, eye.map2, cv2.INTER_LINEAR,
+                            borderMode=cv2.BORDER_REPLICATE)
+            self._static_raw[side] = raw
+            self._static_done[side] = None if self.effects.legacy else self._sensors[side].static(raw)
+        eye = self._eyes["left"]
+        zbuf = cv2.remap(self._static_canvas["left"][1], eye.map1, eye.map2, cv2.INTER_NEAREST,
+                         borderMode=cv2.BORDER_REPLICATE)
+        self._static_depth = _gl_depth_to_metres(zbuf)
 
     # --- set-up helpers ------------------------------------------------------------------------
 
@@ -465,11 +405,23 @@ class StereoRenderer:
         return self._pyrender.MetallicRoughnessMaterial(
             baseColorFactor=np.append(_linear(rgb_display), 1.0), metallicFactor=0.0, roughnessFactor=1.0)
 
-    def _mesh(self, positions, normals, faces, material):
+    def _mesh(self, positions, normals, faces, material, uv=None):
         pyrender = self._pyrender
-        primitive = pyrender.Primitive(positions=positions, normals=normals, indices=faces,
+        primitive = pyrender.Primitive(positions=positions, normals=normals, indices=faces, texcoord_0=uv,
                                        material=material, mode=pyrender.constants.GLTF.TRIANGLES)
         return pyrender.Mesh([primitive])
+
+    def _part_mesh(self, part: Part):
+        """A scene part as a mesh; textures are uploaded in BGR order like every other colour."""
+        pyrender = self._pyrender
+        texture = None
+        if part.texture is not None:
+            texture = pyrender.Texture(source=np.ascontiguousarray(part.texture[..., ::-1]), source_channels="RGB")
+        material = pyrender.MetallicRoughnessMaterial(baseColorFactor=np.append(_linear(part.rgb), 1.0),
+                                                      baseColorTexture=texture, metallicFactor=0.0,
+                                                      roughnessFactor=1.0)
+        return self._mesh(part.positions, part.normals, part.faces, material,
+                          part.uv if texture is not None else None)
 
     @property
     def canvas_size(self) -> tuple[int, int]:
@@ -482,7 +434,14 @@ class StereoRenderer:
 
     # --- per-frame scene updates ----------------------------------------------------------------
 
-    def _set_arm(self, shape: ArmShape | None) -> None:
+    def _arm_geometry(self, shape: ArmShape):
+        """The tube mesh and the plate poses of one arm shape (built before anything is drawn, so
+        the drawn rectangle can cover every sub-frame of a motion-blurred exposure)."""
+        tube = tube_surface(shape.points_world, shape.radius_m, self.tube_sides)
+        poses = [pose_with_z(plate.normal_world, plate.center_world) for plate in shape.plates]
+        return shape, tube, poses
+
+    def _set_arm(self, shape: ArmShape | None, geometry=None) -> None:
         scene = self._scene
         if self._tube_node is not None:
             scene.remove_node(self._tube_node)
@@ -492,7 +451,7 @@ class StereoRenderer:
             for node in self._plate_nodes:
                 node.mesh.is_visible = False
             return
-        positions, normals, faces = tube_surface(shape.points_world, shape.radius_m, self.tube_sides)
+        _, (positions, normals, faces), poses = geometry if geometry is not None else self._arm_geometry(shape)
         self._tube_node = scene.add(self._mesh(positions, normals, faces, self._arm_material), name="arm")
         self._arm_vertices = [positions.astype(np.float64)]
         key = tuple((round(p.radius_m, 9), round(p.thickness_m, 9)) for p in shape.plates)
@@ -505,12 +464,29 @@ class StereoRenderer:
                 disc = tube_surface(np.array([[0, 0, -h], [0, 0, h]]), np.full(2, plate.radius_m), self.tube_sides)
                 self._plate_nodes.append(scene.add(self._mesh(*disc, self._plate_material), name="plate"))
             self._plate_key = key
-        for node, plate in zip(self._plate_nodes, shape.plates, strict=True):
+        for node, pose in zip(self._plate_nodes, poses, strict=True):
             node.mesh.is_visible = True
-            pose = _pose_with_z(plate.normal_world, plate.center_world)
             scene.set_pose(node, pose)
             local = node.mesh.primitives[0].positions.astype(np.float64)
             self._arm_vertices.append(local @ pose[:3, :3].T + pose[:3, 3])
+
+    def _show_moving(self, visible: bool) -> None:
+        for _, nodes, _ in self._moving:
+            for node in nodes:
+                node.mesh.is_visible = visible
+
+    def _moving_vertices(self, t_s: float) -> list[np.ndarray]:
+        out = []
+        for obj, _, locals_ in self._moving:
+            T = obj.T_world(t_s)
+            out += [local @ T[:3, :3].T + T[:3, 3] for local in locals_]
+        return out
+
+    def _set_moving(self, t_s: float) -> None:
+        for obj, nodes, _ in self._moving:
+            T = obj.T_world(t_s)
+            for node in nodes:
+                self._scene.set_pose(node, T)
 
     def _set_props(self, props: Sequence[Prop]) -> None:
         for node in self._prop_nodes:
@@ -548,14 +524,13 @@ class StereoRenderer:
                                   dtype=np.float32).reshape(h, w)
         return colour, depth
 
-    def _drawn_rect(self, side: str) -> tuple[int, int, int, int]:
-        """Bottom-up (x, y, w, h) canvas rectangle holding every drawn vertex of this frame.
+    def _drawn_rect(self, side: str, vertices: list[np.ndarray]) -> tuple[int, int, int, int]:
+        """Bottom-up (x, y, w, h) canvas rectangle holding every given vertex.
 
-        Outside it the canvas is background, so only this rectangle is cleared, drawn and read
-        (a scissor test): it is what keeps a stereo pair within budget on a CPU rasteriser.
+        Outside it the canvas shows the static scene, so only this rectangle is cleared, drawn
+        and read (a scissor test): it is what keeps a stereo pair within budget on a CPU rasteriser.
         """
         width, height = self._canvas_size
-        vertices = self._arm_vertices + self._prop_vertices
         if not vertices:
             return 0, 0, 1, 1
         T = self.rig.T_world_cam(side)
@@ -574,37 +549,37 @@ class StereoRenderer:
             return 0, 0, 1, 1
         return x0, height - bottom, x1 - x0, bottom - top
 
-    def _render_canvas(self, side: str, depth: bool) -> tuple[np.ndarray, np.ndarray | None, bool]:
-        """Render one eye's ideal canvas; returns (colour, depth, bottom_up)."""
+    def _render_region(self, side: str, rect, depth: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        """Draw the scene into one eye's canvas rectangle (bottom-up GL coordinates); returns its
+        colour (and raw OpenGL depth if asked)."""
+        GL = self._GL
         self._scene.main_camera_node = self._camera_nodes[side]
-        if self._fast_readback:
-            GL = self._GL
-            self._want_depth = depth
-            rect = self._drawn_rect(side)
-            self._rect = rect
-            self._renderer._platform.make_current()
-            GL.glEnable(GL.GL_SCISSOR_TEST)
-            GL.glScissor(*rect)
-            colour, zbuf = self._renderer.render(self._scene)
-            canvas = self._canvas[side]
-            previous = canvas[2]
-            if previous is not None:  # restore the background where the last frame drew
-                px, py, pw, ph = previous
-                canvas[0][py:py + ph, px:px + pw] = self._background_px
-                canvas[1][py:py + ph, px:px + pw] = 1.0
-            x, y, w, h = rect
-            canvas[0][y:y + h, x:x + w] = colour
-            if zbuf is not None:
-                canvas[1][y:y + h, x:x + w] = zbuf
-            canvas[2] = rect
-            return canvas[0], (canvas[1] if depth else None), True
-        colour, z_m = self._renderer.render(self._scene)  # top-down, linear depth, 0 = background
-        return np.ascontiguousarray(colour), np.ascontiguousarray(z_m), False
+        self._want_depth = depth
+        self._rect = rect
+        self._renderer._platform.make_current()
+        GL.glEnable(GL.GL_SCISSOR_TEST)
+        GL.glScissor(*rect)
+        return self._renderer.render(self._scene)
+
+    def _paste(self, side: str, rect, colour: np.ndarray, zbuf: np.ndarray | None) -> None:
+        """Put a drawn rectangle into the canvas, restoring the static scene where the last one was."""
+        canvas = self._canvas[side]
+        static_colour, static_depth = self._static_canvas[side]
+        previous = canvas[2]
+        if previous is not None:
+            px, py, pw, ph = previous
+            canvas[0][py:py + ph, px:px + pw] = static_colour[py:py + ph, px:px + pw]
+            canvas[1][py:py + ph, px:px + pw] = static_depth[py:py + ph, px:px + pw]
+        x, y, w, h = rect
+        canvas[0][y:y + h, x:x + w] = colour
+        if zbuf is not None:
+            canvas[1][y:y + h, x:x + w] = zbuf
+        canvas[2] = rect
 
     def _raw_roi(self, side: str) -> tuple[int, int, int, int] | None:
         """(x0, y0, x1, y1) raw pixels whose rays land in this frame's drawn canvas rectangle.
 
-        Elsewhere the raw image is plain background. The distortion maps the rectangle's border
+        Elsewhere the raw image shows the static scene. The distortion maps the rectangle's border
         onto the border of its image (the map is one-to-one), so the border's bounding box holds
         the whole region. None when no rectangle is known (pyrender's own read-back).
         """
@@ -628,34 +603,21 @@ class StereoRenderer:
         y1 = int(np.clip(np.ceil(uv[:, 1].max()) + 3, 0, H))
         return x0, y0, x1, y1
 
-    def _to_raw(self, side: str, canvas: np.ndarray, bottom_up: bool) -> np.ndarray:
+    def _to_raw(self, side: str, canvas: np.ndarray, bottom_up: bool) -> tuple[np.ndarray, tuple | None]:
+        """The distorted raw optical image and the raw region that differs from the static scene."""
         eye = self._eyes[side]
         if not bottom_up:
             canvas = np.ascontiguousarray(canvas[::-1])
         roi = self._raw_roi(side)
         if roi is None:
-            return cv2.remap(canvas, eye.map1, eye.map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        # Only the region that can show something is resampled; the rest is background.
-        w, h = self.rig.image_size
-        out = np.empty((h, w, 3), np.uint8)
-        out[:] = self._background_px
+            return cv2.remap(canvas, eye.map1, eye.map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE), None
+        # Only the region that can show something new is resampled; the rest is the static scene.
+        out = self._static_raw[side].copy()
         x0, y0, x1, y1 = roi
         if x1 > x0 and y1 > y0:
             out[y0:y1, x0:x1] = cv2.remap(canvas, eye.map1[y0:y1, x0:x1], eye.map2[y0:y1, x0:x1],
                                           cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        return out
-
-    def _sensor(self, image: np.ndarray) -> np.ndarray:
-        s = self.sensor
-        if s.blur_sigma_px > 0:
-            image = cv2.GaussianBlur(image, (0, 0), s.blur_sigma_px)
-        if s.noise_std_dn > 0:
-            u8 = np.frombuffer(self._rng.bytes(image.size), dtype=np.uint8).reshape(image.shape)
-            noise = cv2.LUT(u8, self._noise_lut)
-            return cv2.addWeighted(image, s.exposure_gain, noise, 1.0, 0.0, dtype=cv2.CV_8U)
-        if s.exposure_gain != 1.0:
-            return cv2.convertScaleAbs(image, alpha=s.exposure_gain)
-        return image
+        return out, roi
 
     def _depth_to_raw(self, zbuf: np.ndarray, bottom_up: bool) -> np.ndarray:
         eye = self._eyes["left"]
@@ -664,48 +626,119 @@ class StereoRenderer:
                           borderMode=cv2.BORDER_REPLICATE)
             z[z <= 0] = np.inf
             return z
-        w, h = self.rig.image_size
-        z = np.full((h, w), np.inf, np.float32)
+        z = self._static_depth.copy()
         x0, y0, x1, y1 = self._raw_roi("left")
         if x1 <= x0 or y1 <= y0:
             return z
         d = cv2.remap(zbuf, eye.map1[y0:y1, x0:x1], eye.map2[y0:y1, x0:x1], cv2.INTER_NEAREST,
                       borderMode=cv2.BORDER_REPLICATE)
-        n, f = _ZNEAR_M, _ZFAR_M
-        with np.errstate(divide="ignore"):
-            linear = (2.0 * n * f) / ((f + n) - (2.0 * d - 1.0) * (f - n))  # OpenGL depth -> camera z
-        linear[d >= 1.0] = np.inf
-        z[y0:y1, x0:x1] = linear
+        z[y0:y1, x0:x1] = _gl_depth_to_metres(d)
         return z
 
-    def render(self, shape: ArmShape | None, *, depth: bool = True, props: Sequence[Prop] = ()) -> StereoImages:
+    def _subframes(self, shape: ArmShape | None, t_s: float,
+                   previous: tuple[ArmShape, float] | None) -> list[tuple[ArmShape | None, float]]:
+        """(arm shape, time) of each sub-frame of the exposure, the last at ``t_s``.
+
+        The arm's shape between the previous frame and this one is interpolated linearly (the
+        physics only hands over one shape per capture); moving objects follow their paths exactly.
+        """
+        e = self.effects
+        if e.exposure_s <= 0 or e.motion_subframes < 2:
+            return [(shape, t_s)]
+        times = np.linspace(t_s - e.exposure_s, t_s, e.motion_subframes)
+        out = []
+        for tau in times:
+            sub = shape
+            if shape is not None and previous is not None and previous[1] < t_s:
+                weight = float(np.clip((t_s - tau) / (t_s - previous[1]), 0.0, 1.0))
+                sub = interpolate_shape(shape, previous[0], weight)
+            out.append((sub, float(tau)))
+        return out
+
+    def render(self, shape: ArmShape | None, *, depth: bool = True, props: Sequence[Prop] = (), t_s: float = 0.0,
+               previous: tuple[ArmShape, float] | None = None) -> StereoImages:
         """Render one raw stereo pair.
 
         Args:
             shape: the arm (``None`` renders no arm, e.g. for calibration-board views).
             depth: also return the left depth map (in raw left pixels).
             props: extra objects for this frame only.
+            t_s: the time of the frame (moving scene objects follow their paths; the exposure ends here).
+            previous: the arm's (shape, time) at the previous frame, for motion blur over the exposure.
 
         Returns:
             StereoImages with BGR uint8 raw images of ``rig.image_size`` and the left depth.
         """
         t0 = time.perf_counter()
-        self._set_arm(shape)
+        subframes = [(None if s is None else self._arm_geometry(s), tau)
+                     for s, tau in self._subframes(shape, t_s, previous)]
         self._set_props(props)
+        gl = {"left": 0.0, "right": 0.0}
+        accumulate = len(subframes) > 1
+        canvases: dict[str, np.ndarray] = {}
+        bottom_up = True
+        zbuf = None
         t1 = time.perf_counter()
-        canvas_l, zbuf, up_l = self._render_canvas("left", depth)
-        t2 = time.perf_counter()
-        canvas_r, _, up_r = self._render_canvas("right", False)
+        if self._fast_readback:
+            vertices = list(self._prop_vertices)
+            for geometry, tau in subframes:
+                if geometry is not None:
+                    vertices.append(geometry[1][0].astype(np.float64))
+                    vertices += [_disc_points(plate, pose) for plate, pose in zip(geometry[0].plates, geometry[2],
+                                                                                  strict=True)]
+                vertices += self._moving_vertices(tau)
+            rects = {side: self._drawn_rect(side, vertices) for side in _SIDES}
+            sums: dict[str, np.ndarray] = {}
+            for k, (geometry, tau) in enumerate(subframes):
+                self._set_arm(None if geometry is None else geometry[0], geometry)
+                self._set_moving(tau)
+                last = k == len(subframes) - 1
+                for side in _SIDES:
+                    start = time.perf_counter()
+                    colour, z = self._render_region(side, rects[side], depth and last and side == "left")
+                    gl[side] += time.perf_counter() - start
+                    if accumulate:
+                        linear = _TO_LINEAR[colour]
+                        sums[side] = linear if k == 0 else sums[side] + linear
+                        if last:
+                            colour = _from_linear(sums[side] / len(subframes))
+                    if last:
+                        self._paste(side, rects[side], colour, z)
+                        zbuf = self._canvas["left"][1] if side == "left" else zbuf
+            for side in _SIDES:
+                canvases[side] = self._canvas[side][0]
+        else:
+            bottom_up = False
+            sums = {}
+            for k, (geometry, tau) in enumerate(subframes):
+                self._set_arm(None if geometry is None else geometry[0], geometry)
+                self._set_moving(tau)
+                last = k == len(subframes) - 1
+                for side in _SIDES:
+                    start = time.perf_counter()
+                    self._scene.main_camera_node = self._camera_nodes[side]
+                    colour, z = self._renderer.render(self._scene)  # top-down, linear depth, 0 = background
+                    gl[side] += time.perf_counter() - start
+                    if accumulate:
+                        linear = _TO_LINEAR[colour]
+                        sums[side] = linear if k == 0 else sums[side] + linear
+                        colour = _from_linear(sums[side] / len(subframes)) if last else colour
+                    if last:
+                        canvases[side] = np.ascontiguousarray(colour)
+                        zbuf = np.ascontiguousarray(z) if side == "left" else zbuf
         t3 = time.perf_counter()
-        left = self._sensor(self._to_raw("left", canvas_l, up_l))
-        right = self._sensor(self._to_raw("right", canvas_r, up_r))
-        depth_m = self._depth_to_raw(zbuf, up_l) if depth else None
+        images = {}
+        for side in _SIDES:
+            raw, roi = self._to_raw(side, canvases[side], bottom_up)
+            static_done = None if not self._fast_readback else self._static_done[side]
+            images[side] = self._sensors[side].apply(raw, static_done, roi)
+        depth_m = self._depth_to_raw(zbuf, bottom_up) if depth else None
         t4 = time.perf_counter()
         if props:
             self._set_props(())
-        self.timings_s = {"scene": t1 - t0, "gl_left": t2 - t1, "gl_right": t3 - t2, "post": t4 - t3,
+        self.timings_s = {"scene": t1 - t0, "gl_left": gl["left"], "gl_right": gl["right"], "post": t4 - t3,
                           "total": t4 - t0}
-        return StereoImages(left, right, depth_m)
+        return StereoImages(images["left"], images["right"], depth_m)
 
     def close(self) -> None:
         """Release the OpenGL context; closing twice is harmless."""
@@ -718,3 +751,48 @@ class StereoRenderer:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+_TO_LINEAR = ((np.arange(256) / 255.0) ** _GAMMA).astype(np.float32)
+_FROM_LINEAR = np.clip(np.rint(255.0 * (np.arange(4096) / 4095.0) ** (1.0 / _GAMMA)), 0, 255).astype(np.uint8)
+
+
+def _from_linear(linear: np.ndarray) -> np.ndarray:
+    """Linear light in 0..1 -> display uint8 (a 12-bit table: exact to the display's step)."""
+    return _FROM_LINEAR[np.clip(linear * 4095.0 + 0.5, 0, 4095).astype(np.uint16)]
+
+
+def _disc_points(plate: Plate, pose: np.ndarray) -> np.ndarray:
+    """(16, 3) points on the rims of a plate's two faces: enough to bound its image."""
+    angles = np.linspace(0.0, 2.0 * math.pi, 8, endpoint=False)
+    h = plate.thickness_m / 2.0
+    local = np.array([[plate.radius_m * math.cos(a), plate.radius_m * math.sin(a), z]
+                      for z in (-h, h) for a in angles])
+    return local @ pose[:3, :3].T + pose[:3, 3]
+
+
+def _gl_depth_to_metres(d: np.ndarray) -> np.ndarray:
+    """OpenGL depth-buffer values -> camera z in metres (``inf`` where nothing was drawn)."""
+    n, f = _ZNEAR_M, _ZFAR_M
+    with np.errstate(divide="ignore"):
+        linear = (2.0 * n * f) / ((f + n) - (2.0 * d.astype(np.float32) - 1.0) * (f - n))
+    linear = linear.astype(np.float32)
+    linear[d >= 1.0] = np.inf
+    return linear
+
+
+def interpolate_shape(current: ArmShape, previous: ArmShape, weight: float) -> ArmShape:
+    """The arm a fraction ``weight`` of the way back from ``current`` to ``previous`` (0: current).
+
+    Points and plates move on straight lines; shapes with different sampling are not mixed.
+    """
+    if weight <= 0 or len(current.points_world) != len(previous.points_world) or \
+            len(current.plates) != len(previous.plates):
+        return current
+    points = current.points_world + weight * (previous.points_world - current.points_world)
+    plates = []
+    for a, b in zip(current.plates, previous.plates, strict=True):
+        normal = a.normal_world + weight * (b.normal_world - a.normal_world)
+        plates.append(Plate(a.center_world + weight * (b.center_world - a.center_world),
+                            normal / np.linalg.norm(normal), a.radius_m, a.thickness_m))
+    return ArmShape(points, current.s_m, current.radius_m, tuple(plates))

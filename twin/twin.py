@@ -25,6 +25,7 @@ from twin.camera import SimStereoCamera
 from twin.params import ArmParams
 from twin.physics import ArmSimulation
 from twin.rig import ConfigFileError, StereoRig, TableReader, integer, load_toml, number
+from twin.scene import LabScene, clean_scene, load_scene
 from twin.shape import ArmShape
 from twin.valves import SimValveBank
 
@@ -35,6 +36,12 @@ FRAMES = ("camera", "world")
 def _boolean(value) -> bool:
     if not isinstance(value, bool):
         raise TypeError(f"expected true or false, got {value!r}")
+    return value
+
+
+def _name(value) -> str:
+    if not isinstance(value, str) or not value.strip():
+        raise TypeError(f"expected a preset name, got {value!r}")
     return value
 
 
@@ -61,6 +68,9 @@ class TwinConfig:
         tube_sides: vertices around the rendered tube.
         backbone_points: points of the ground-truth backbone (>= 100).
         source: the file read, if any.
+        scene_file: the lab scenes (``scene.toml``), or None for the clean scene only.
+        scene_preset: which preset of ``scene_file`` the camera sees.
+        scene_seed: seed of the scene's textures and of the ``random`` preset's draw.
     """
 
     arm: Path
@@ -71,6 +81,22 @@ class TwinConfig:
     tube_sides: int = 48
     backbone_points: int = 200
     source: Path | None = None
+    scene_file: Path | None = None
+    scene_preset: str = "clean"
+    scene_seed: int = 0
+
+    def scene(self) -> LabScene:
+        """The lab scene this configuration renders.
+
+        Raises:
+            ConfigFileError: the scene file or the preset is bad (names the file and key).
+        """
+        if self.scene_file is None:
+            if self.scene_preset != "clean":
+                raise ConfigFileError(f"{self.source or 'twin config'}: [scene] preset {self.scene_preset!r} needs "
+                                      "a scene file (key scenes)")
+            return clean_scene()
+        return load_scene(self.scene_file, self.scene_preset, self.scene_seed)
 
     @classmethod
     def load(cls, path: str | Path) -> TwinConfig:
@@ -84,6 +110,7 @@ class TwinConfig:
         base = path.parent
         arm = top.take("arm", _file(base))
         camera = top.take("camera", _file(base))
+        scene_file = top.take("scenes", _file(base), None)
         physics = top.sub("physics")
         timestep_s = physics.take("timestep_s", number(1e-5, 0.02), 0.002)
         physics.done()
@@ -96,15 +123,22 @@ class TwinConfig:
         sides = render.take("tube_sides", integer(8, 512), 48) if render else 48
         if render:
             render.done()
+        scene = top.sub("scene", required=False)
+        preset = scene.take("preset", _name, "clean") if scene else "clean"
+        scene_seed = scene.take("seed", integer(0, 2**63 - 1), 0) if scene else 0
+        if scene:
+            scene.done()
         truth = top.sub("truth", required=False)
         points = truth.take("backbone_points", integer(100, 100_000), 200) if truth else 200
         if truth:
             truth.done()
         top.done()
-        for key, file in (("arm", arm), ("camera", camera)):
-            if not file.is_file():
+        for key, file in (("arm", arm), ("camera", camera), ("scenes", scene_file)):
+            if file is not None and not file.is_file():
                 raise ConfigFileError(f"{path}: key {key}: file {file} not found")
-        return cls(arm, camera, timestep_s, clamp, seed, sides, points, path)
+        config = cls(arm, camera, timestep_s, clamp, seed, sides, points, path, scene_file, preset, scene_seed)
+        config.scene()  # a bad preset is an error now, naming this file, not when the camera connects
+        return config
 
 
 class Twin:
@@ -128,10 +162,11 @@ class Twin:
         c = self.config
         self.params = ArmParams.load(c.arm)
         self.rig = StereoRig.load(c.camera)
+        self.scene = c.scene()
         self.sim = ArmSimulation(self.params, timestep_s=c.timestep_s)
         self.valves = SimValveBank(self.sim, clamp=c.clamp_pressures)
         self.camera = SimStereoCamera(self.rig, self.shape, lambda: self.sim.time_s,
-                                      seed=c.seed, tube_sides=c.tube_sides)
+                                      seed=c.seed, tube_sides=c.tube_sides, scene=self.scene)
         self.valves.connect()
         try:
             self.camera.connect()

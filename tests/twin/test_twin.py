@@ -148,7 +148,7 @@ def test_closing_the_twin_vents_the_valves():
 
 
 def _copy_models(tmp_path: Path) -> Path:
-    for name in ("twin.toml", "camera.toml", "arm.toml"):
+    for name in ("twin.toml", "camera.toml", "arm.toml", "scene.toml"):
         shutil.copy(MODELS / name, tmp_path / name)
     return tmp_path / "twin.toml"
 
