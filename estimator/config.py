@@ -29,6 +29,7 @@ _PRESETS = {
         "som_time": "sample",
         "som_order": "given",
         "plausibility_checks": False,  # the paper reports every frame
+        "tube_fit": False,
     },
     "default": {
         "roi": True,
@@ -42,6 +43,7 @@ _PRESETS = {
         "som_time": "epoch",
         "som_order": "shuffled",
         "plausibility_checks": True,
+        "tube_fit": True,
     },
 }
 
@@ -98,6 +100,9 @@ class EstimatorConfig:
         min_length_fraction: see ``arm_length_m``.
         max_length_fraction: an estimate longer than this fraction of ``arm_length_m`` comes from
             wrongly matched left and right centerlines (its points scatter in depth): invalid.
+        max_bridge_widths: with the tube fit, the longest stretch of the 2D centerline without a
+            clean silhouette chord (an occluder, a distractor the arm touches) that the fit may
+            bridge, in arm widths; the fit then marks the points it bridged (``measured``).
         max_gap_widths: a stretch longer than this many arm widths without a clean silhouette
             chord (baseplates hide about one) means parts overlap or are occluded: invalid.
         max_width_ratio: a single tube's apparent width is 2 r / B times its disparity; a
@@ -119,6 +124,8 @@ class EstimatorConfig:
         roi: process only a region of interest around the arm (found on a coarse image).
         max_self_approach: a centerline that comes closer to itself than this fraction of the arm
             width (between parts more than two widths apart along it) is a self-overlap: invalid.
+        tube_fit: refine the 3D centerline by fitting a tube (a B-spline axis with a radius) to the
+            sub-pixel silhouette edges of both images (default mode).
     """
 
     mode: str = "default"
@@ -157,11 +164,13 @@ class EstimatorConfig:
     roi_margin_px: int = 48
     max_self_approach: float = 0.8
     max_gap_widths: float = 2.0
+    max_bridge_widths: float = 4.0
     min_length_fraction: float = 0.7
     max_length_fraction: float = 1.5
     max_width_ratio: float = 1.35
     max_wide_fraction: float = 0.08
     plausibility_checks: bool | None = None
+    tube_fit: bool | None = None
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -207,6 +216,7 @@ class EstimatorConfig:
                self.min_length_fraction)
         _check(self.max_length_fraction > 1, "max_length_fraction", "a fraction above 1", self.max_length_fraction)
         _check(self.max_gap_widths > 0, "max_gap_widths", "a positive number", self.max_gap_widths)
+        _check(self.max_bridge_widths > 0, "max_bridge_widths", "a positive number", self.max_bridge_widths)
         _check(self.max_width_ratio > 1, "max_width_ratio", "a ratio above 1", self.max_width_ratio)
         _check(0 < self.max_wide_fraction <= 1, "max_wide_fraction", "a fraction in (0, 1]", self.max_wide_fraction)
         if self.base_pixel is not None:
@@ -214,7 +224,8 @@ class EstimatorConfig:
             _check(len(bp) == 2 and all(isinstance(v, int | float) for v in bp), "base_pixel", "(u, v) pixels",
                    self.base_pixel)
             object.__setattr__(self, "base_pixel", (float(bp[0]), float(bp[1])))
-        for name in ("roi", "medial_refinement", "extend_ends", "som_compiled", "som_shrink", "plausibility_checks"):
+        for name in ("roi", "medial_refinement", "extend_ends", "som_compiled", "som_shrink", "plausibility_checks",
+                     "tube_fit"):
             _check(isinstance(getattr(self, name), bool), name, "true or false", getattr(self, name))
 
     @classmethod

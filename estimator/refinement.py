@@ -180,7 +180,10 @@ def refine_centerline(mask: np.ndarray, nodes: np.ndarray, *, iterations: int = 
             return None
         max_half = 2.0 * float(np.median(half[ok]))
         before = points
-        points, tangent = _fit(arc[ok], mids[ok], np.ones(ok.sum()), arc)
+        try:
+            points, tangent = _fit(arc[ok], mids[ok], np.ones(ok.sum()), arc)
+        except ValueError:  # too few chords for the spline's knots (scipy's Schoenberg-Whitney check)
+            return None
         if not _follows(points, before, ok, mids, float(np.median(half[ok]))):
             return None  # nodes too disordered for a curve through them (a baseline's zig-zag)
         # Keep only the stretch between the outermost supported samples; ends are found next.

@@ -14,7 +14,11 @@ from estimator.config import EstimatorConfig
 
 def hsv_mask(image_bgr: np.ndarray, low: tuple[int, int, int], high: tuple[int, int, int]) -> np.ndarray:
     """Binary mask (uint8, 0/255) of pixels inside the inclusive HSV range; hue may wrap past 180."""
-    hsv = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2HSV)
+    return hsv_in_range(cv2.cvtColor(image_bgr, cv2.COLOR_BGR2HSV), low, high)
+
+
+def hsv_in_range(hsv: np.ndarray, low: tuple[int, int, int], high: tuple[int, int, int]) -> np.ndarray:
+    """:func:`hsv_mask` of an image already converted to HSV (OpenCV units)."""
     if low[0] <= high[0]:
         return cv2.inRange(hsv, np.array(low, np.uint8), np.array(high, np.uint8))
     upper = cv2.inRange(hsv, np.array(low, np.uint8), np.array((180, high[1], high[2]), np.uint8))
@@ -22,25 +26,43 @@ def hsv_mask(image_bgr: np.ndarray, low: tuple[int, int, int], high: tuple[int, 
     return cv2.bitwise_or(upper, lower)
 
 
-def arm_mask(image_bgr: np.ndarray, config: EstimatorConfig) -> np.ndarray:
+def arm_mask(image_bgr: np.ndarray, config: EstimatorConfig,
+             hsv_low: tuple[int, int, int] | None = None) -> np.ndarray:
     """Segment the arm: median filter, HSV threshold, opening and closing, small regions removed.
 
     Args:
         image_bgr: (H, W, 3) uint8, rectified (or a region of it).
         config: HSV range, filter sizes and the minimum region area.
+        hsv_low: overrides ``config.hsv_low`` (the estimator raises its saturation floor under warm light).
 
     Returns:
         (H, W) uint8 mask, 255 on the arm.
     """
+    return segment(image_bgr, config, hsv_low)[0]
+
+
+def segment(image_bgr: np.ndarray, config: EstimatorConfig, hsv_low: tuple[int, int, int] | None = None,
+            colour_filter=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`arm_mask` that also returns what a colour model learns from.
+
+    Args:
+        colour_filter: ``f(hsv, gate) -> mask`` applied to the gate before the morphology (a
+            learned colour model removing background colours), or None.
+
+    Returns:
+        (mask, hsv, gate): the arm mask, the median-filtered image in HSV, the raw colour gate.
+    """
     image = cv2.medianBlur(image_bgr, config.median_ksize) if config.median_ksize > 1 else image_bgr
-    mask = hsv_mask(image, config.hsv_low, config.hsv_high)
+    hsv = cv2.cvtColor(image, cv2.COLOR_BGR2HSV)
+    gate = hsv_in_range(hsv, config.hsv_low if hsv_low is None else hsv_low, config.hsv_high)
+    mask = gate if colour_filter is None else colour_filter(hsv, gate)
     if config.open_ksize > 1:
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (config.open_ksize, config.open_ksize))
         mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, kernel)
     if config.close_ksize > 1:
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (config.close_ksize, config.close_ksize))
         mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, kernel)
-    return remove_small_regions(mask, config.min_area_px)
+    return remove_small_regions(mask, config.min_area_px), hsv, gate
 
 
 def remove_small_regions(mask: np.ndarray, min_area_px: int) -> np.ndarray:

@@ -1,0 +1,266 @@
+"""Which pixels of the colour mask are the arm, and not the wood, skin or orange things around it.
+
+The paper segments by colour alone in front of a single-colour backdrop. In a lab the colour
+range also takes in wooden shelves, skin, orange tool cases and warm-lit walls. What sets the
+arm apart is its shape and its history, so this stage keeps, of the colour mask:
+
+- when the previous frame was trusted, what lies in a corridor around the previous centerline
+  (the arm moves little between frames); pieces of a distractor that touch the arm are cut off at
+  the corridor's edge;
+- otherwise (cold start, or the arm left its corridor), the tube: a component of nearly constant
+  width along its medial axis whose width and length agree with a tube of the configured radius
+  and length at the depth the two images give it, the one reaching furthest towards the base
+  (the base hint, or the top edge where the arm hangs from its mount), plus the tube-like pieces
+  that continue it across short gaps (baseplates, an occluder).
+
+Everything here works on the coarse (1/4-scale) rectified masks the region-of-interest search
+already computes, so it costs about a millisecond per image.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+MIN_ASPECT = 2.5  # a tube is at least this many widths long (a folded arm still is)
+MIN_CONSISTENCY = 0.55  # share of the medial axis whose half width is near the typical one
+WIDTH_AT_DEPTH = (0.6, 1.7)  # measured width / the configured tube's width at the measured depth
+GAP_WIDTHS = 3.0  # pieces of one tube are at most this many widths apart (baseplates, occluders)
+
+
+def corridor(shape: tuple[int, int], curve_px: np.ndarray, half_width_px: float) -> np.ndarray:
+    """(H, W) uint8 mask, 255 within ``half_width_px`` of a polyline."""
+    out = np.zeros(shape, np.uint8)
+    if len(curve_px) < 2:
+        return out
+    thickness = max(int(round(2.0 * half_width_px)), 1)
+    pts = np.round(curve_px * 16.0).astype(np.int32).reshape(-1, 1, 2)  # 4 fractional bits
+    cv2.polylines(out, [pts], False, 255, thickness=thickness, lineType=cv2.LINE_8, shift=4)
+    return out
+
+
+def keep_in_corridor(mask: np.ndarray, curve_px: np.ndarray, reach_px: float, clip_px: float) -> np.ndarray:
+    """The components of ``mask`` that come within ``reach_px`` of the previous centerline,
+    cut to within ``clip_px`` of it (a distractor the arm touches is cut off at the corridor)."""
+    labels_count, labels = cv2.connectedComponents(mask, connectivity=8)
+    near = corridor(mask.shape, curve_px, reach_px) > 0
+    touching = np.unique(labels[near & (mask > 0)])
+    touching = touching[touching > 0]
+    if len(touching) == 0:
+        return np.zeros_like(mask)
+    keep = np.zeros(labels_count, bool)
+    keep[touching] = True
+    kept = np.where(keep[labels], 255, 0).astype(np.uint8)
+    return cv2.bitwise_and(kept, corridor(mask.shape, curve_px, clip_px))
+
+
+@dataclass(frozen=True)
+class TubeGeometry:
+    """What the estimator's configuration says of the tube and the rig, in coarse pixels.
+
+    Attributes:
+        focal_px: focal length of the coarse rectified images.
+        baseline_m: stereo baseline.
+        radius_m: the tube's radius (configured).
+        length_m: the arm's length (configured), or None.
+        base_hint_px: (u, v) of the base in the coarse left image, or None (the top edge).
+    """
+
+    focal_px: float
+    baseline_m: float
+    radius_m: float
+    length_m: float | None
+    base_hint_px: tuple[float, float] | None = None
+
+    def width_at(self, disparity_px: float) -> float:
+        """Expected width (coarse pixels) of the tube at the depth of this disparity: 2 r d / B."""
+        return 2.0 * self.radius_m * disparity_px / self.baseline_m
+
+
+@dataclass(frozen=True, eq=False)
+class Trace:
+    """A tube traced along the skeleton of a coarse mask from one of its ends.
+
+    Attributes:
+        path: (M, 2) ordered (u, v) skeleton pixels, from the start end.
+        half_width: median distance to the background along the path (half the tube's width).
+        consistency: share of the path whose distance to the background is near ``half_width``.
+    """
+
+    path: np.ndarray
+    half_width: float
+    consistency: float
+
+    @property
+    def length(self) -> float:
+        return float(np.linalg.norm(np.diff(self.path, axis=0), axis=1).sum()) if len(self.path) > 1 else 0.0
+
+    @property
+    def tube_like(self) -> bool:
+        return self.length >= MIN_ASPECT * 2.0 * self.half_width and self.consistency >= MIN_CONSISTENCY
+
+    def mask(self, gate: np.ndarray) -> np.ndarray:
+        """The gate's pixels within the tube's reach of the path: what touches it but is wider is cut off."""
+        return cv2.bitwise_and(gate, corridor(gate.shape, self.path, 1.3 * self.half_width + 1.0))
+
+
+def _trace(points: np.ndarray, adjacency: list[list[int]], branches: list[list[int]], distance: np.ndarray,
+           start: tuple[int, bool]) -> Trace:
+    """Walk from a skeleton end: at each junction or gap the least-bending branch of about the
+    tube's width; a branch that widens (a distractor the tube touches) ends the walk there."""
+    from estimator.skeleton import _direction
+
+    bi, first = start
+    path = list(branches[bi] if first else branches[bi][::-1])
+    used = {bi}
+
+    def half_of(ids):
+        return float(np.median(distance[points[ids, 1].astype(int), points[ids, 0].astype(int)]))
+
+    half = half_of(path)
+    while True:
+        tail = path[-1]
+        span = max(4, int(2 * half))
+        heading = _direction(points, path, at_end=True, span=span)
+        gap_px = GAP_WIDTHS * 2.0 * half
+        best, best_cost = None, np.inf
+        for cj, cand in enumerate(branches):
+            if cj in used:
+                continue
+            for reverse in (False, True):
+                c = cand[::-1] if reverse else cand
+                gap = float(np.linalg.norm(points[c[0]] - points[tail]))
+                connected = c[0] == tail or c[0] in adjacency[tail]
+                if not connected and gap > gap_px:
+                    continue
+                if not 0.5 <= half_of(c) / max(half, 1e-9) <= 2.0:
+                    continue
+                out = _direction(points, c, at_end=False, span=span)
+                if not connected:
+                    back = points[path[max(0, len(path) - span)]]
+                    step = (points[c[0]] - back) / max(float(np.linalg.norm(points[c[0]] - back)), 1e-9)
+                    if step @ heading < 0.5:
+                        continue
+                    out = (out + step) / 2
+                if out @ heading < 0.0:  # a tube does not turn back on itself at a junction
+                    continue
+                cost = 1.0 - float(out @ heading) + (0.0 if connected else gap / gap_px)
+                if cost < best_cost:
+                    best, best_cost = (cj, c), cost
+        if best is None:
+            break
+        used.add(best[0])
+        path.extend(best[1][1:] if best[1][0] == tail else best[1])
+    ids = np.array(path)
+    values = distance[points[ids, 1].astype(int), points[ids, 0].astype(int)]
+    half = float(np.median(values))
+    # Cut the far end where the walk ran into something wider than the tube.
+    wide = values > 1.6 * half
+    if wide.any():
+        tail_ok = np.flatnonzero(~wide)
+        keep_to = tail_ok[-1] + 1 if len(tail_ok) else 0
+        first_wide = np.flatnonzero(wide)
+        cut = first_wide[first_wide > len(ids) // 2]
+        if len(cut):
+            keep_to = min(keep_to, int(cut[0]))
+        ids, values = ids[:keep_to], values[:keep_to]
+    if len(ids) < 2:
+        return Trace(points[ids], half, 0.0)
+    half = float(np.median(values))
+    consistency = float(np.mean((values >= 0.6 * half) & (values <= 1.5 * half)))
+    return Trace(points[ids], half, consistency)
+
+
+MAX_SKELETON_PX = 3000  # a coarse mask with more skeleton than this is a wall or a floor, not a few objects
+MAX_STARTS = 8  # skeleton ends tried as the base, nearest the base hint (or the top) first
+
+
+def trace_tubes(mask: np.ndarray, base_hint: tuple[float, float] | None, min_area_px: int) -> list[Trace]:
+    """Tube-like traces of a coarse mask, from the end nearest the base hint (or the top edge) first.
+
+    Returns no trace for a mask that is mostly one colour field (warm light on a wall): its
+    skeleton is a maze; the caller raises the saturation floor first.
+    """
+    from estimator.skeleton import _branches, _neighbours, thin
+
+    skeleton = thin(mask)
+    if np.count_nonzero(skeleton) > MAX_SKELETON_PX:
+        return []
+    points, adjacency = _neighbours(skeleton)
+    if len(points) < 2:
+        return []
+    distance = cv2.distanceTransform((mask > 0).astype(np.uint8), cv2.DIST_L2, 3)
+    branches = [b for b in _branches(points, adjacency) if len(b) >= 2]
+    degree = np.array([len(a) for a in adjacency])
+    ends = [(bi, first) for bi, b in enumerate(branches) for first in (True, False)
+            if degree[b[0] if first else b[-1]] <= 1]
+    if base_hint is None:
+        key = [points[branches[bi][0 if first else -1]][1] for bi, first in ends]
+    else:
+        key = [float(np.linalg.norm(points[branches[bi][0 if first else -1]] - np.asarray(base_hint)))
+               for bi, first in ends]
+    traces = []
+    for index in np.argsort(key, kind="stable")[:MAX_STARTS]:
+        trace = _trace(points, adjacency, branches, distance, ends[index])
+        if trace.tube_like and trace.half_width * trace.length * 2.0 >= min_area_px:
+            traces.append(trace)
+    return traces
+
+
+def _stereo_match(left: Trace, right: Trace, geometry: TubeGeometry) -> bool:
+    """The right trace shows the same tube: it starts on about the same row (rectified), to the left
+    (positive disparity), with a width that fits a tube of the configured radius at that depth."""
+    a, b = left.path[0], right.path[0]
+    if abs(a[1] - b[1]) > max(2.0 * left.half_width, 3.0):
+        return False
+    disparity = float(a[0] - b[0])
+    if disparity <= 0:
+        return False
+    ratio = (left.half_width + right.half_width) / geometry.width_at(disparity)
+    length_ratio = right.length / max(left.length, 1e-9)
+    return WIDTH_AT_DEPTH[0] <= ratio <= WIDTH_AT_DEPTH[1] and 0.5 <= length_ratio <= 2.0
+
+
+def find_tube(masks: dict[str, np.ndarray], geometry: TubeGeometry,
+              min_area_px: int) -> tuple[dict[str, np.ndarray] | None, str]:
+    """Cold start: the arm's pixels in both coarse rectified masks, or None and why not.
+
+    Each mask's skeleton is traced from its ends (the end nearest the base hint, or the top edge,
+    first); the first left trace that is tube-like and has a right-image trace starting on the
+    same row with a width fitting the configured radius at their disparity is the arm. Of each
+    mask, only what lies within the tube's reach of its trace is kept.
+    """
+    lefts = trace_tubes(masks["left"], geometry.base_hint_px, min_area_px)
+    rights = trace_tubes(masks["right"], None, min_area_px)  # the hint is a left-image pixel
+    radius = f"{geometry.radius_m * 1e3:.0f} mm"
+    if not lefts or not rights:
+        return None, (f"no arm found in the {'left' if not lefts else 'right'} image: nothing of the arm's colour "
+                      "has the shape of a tube")
+    behind = False
+    for left in lefts:
+        for right in rights:
+            if _stereo_match(left, right, geometry):
+                return {"left": left.mask(masks["left"]), "right": right.mask(masks["right"])}, ""
+            same_row = abs(left.path[0][1] - right.path[0][1]) <= max(2.0 * left.half_width, 3.0)
+            behind |= same_row and left.path[0][0] <= right.path[0][0]
+    if behind:
+        return None, ("points behind the camera: the tube appears further right in the right image than in the "
+                      "left one (check the baseline sign in the calibration)")
+    return None, (f"no arm found: no tube in the left image matches one in the right image with the width of a "
+                  f"{radius} radius at its depth (check arm_radius_m and the calibration)")
+
+
+def saturation_split(image_hsv: np.ndarray, gate: np.ndarray, floor: int) -> int:
+    """A saturation threshold that separates the most saturated in-range pixels from the rest.
+
+    Under warm or over-exposed light a wall or a floor falls into the arm's hue range at a lower
+    saturation than the arm's dye. Otsu's threshold on the saturation of the in-range pixels
+    splits them; it is never below the configured floor.
+    """
+    saturation = image_hsv[..., 1][gate > 0]
+    if len(saturation) < 16:
+        return floor
+    threshold, _ = cv2.threshold(saturation.reshape(1, -1), 0, 255, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
+    return int(max(floor, threshold))

@@ -1,0 +1,534 @@
+"""A 3D tube fitted to the silhouette edges of both images: depth where disparity alone is weak.
+
+Triangulating two 2D centerlines row by row fails where the arm runs along the image rows: the
+rows no longer say which left point goes with which right one, and at 1.3 m one pixel of
+disparity is 2 cm of depth. A tube constrains more than its centerline: each of its two
+silhouette edges, in each image, is a line in which the tube is tangent to a plane through that
+camera's centre. Fitted together, the four edges fix the axis where the rows do (the two eyes'
+mid-planes cross there), and where they do not, the apparent width (2 r over the distance) does.
+
+Model (rectified left camera frame, metres): a clamped cubic B-spline axis C(u), u in [0, 1] from
+the first visible point at the base to the tip, carrying a tube whose radius is constant within
+each of a few bins of arc length (an arm's sections have different radii, with steps between
+them). Residuals, in pixels:
+
+- every sub-pixel edge point: its distance to the tangent plane's image line on its side, in
+  the image it was found in (a point-to-line distance, so it does not care where along the
+  tube it lies);
+- the two ends along the curve: the base at the first visible point, the tip at the silhouette's
+  end less the flat end cap's projected overshoot, r |t . s| / Z;
+- a weak third-difference prior on the control points (bridges occluded stretches smoothly, and
+  costs nothing for a bend of constant curvature), and each radius bin's prior (the radius
+  measured in earlier frames, or the configured one).
+
+Gauss-Newton (Levenberg-Marquardt when a step fails) with analytic basis functions and
+compiled finite-difference derivatives of each residual; Huber weights make occluded or
+mis-segmented edges count less. The normal matrix's inverse gives each output point's standard
+deviation, which, with the residuals, decides whether the frame is trusted.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from estimator.bspline import DEGREE, basis, clamped_knots, evaluate_many, fit_control_points
+
+CONTROL_POINTS = 16
+RADIUS_BINS = 24
+EDGE_SIGMA_PX = 0.35  # noise of one sub-pixel edge
+HUBER_PX = 1.0  # residuals beyond this (in pixels) count linearly, not quadratically
+SMOOTH_SIGMA_M = 0.015  # third difference of the control points that costs as much as one pixel of edge
+END_SIGMA_PX = 2.0  # the ends are found like the edges, but on a cap or against the mount's rim
+END_STIFFNESS = 4.0
+END_SIDES = (0, 1)
+BASE_SIGMA_M = 0.001  # the mount does not move: a learned base point holds to a millimetre
+BASE_DIRECTION_SIGMA = 0.02  # and the arm leaves it in the same direction (radians)
+ITERATIONS = 5
+CONVERGED = 5e-3  # stop once an iteration lowers the cost by less than this fraction
+REASSIGN_AT = (2, 4)  # iterations after which every edge is re-attached to the nearest point of the axis
+CURVE_SAMPLES = 160
+
+
+@dataclass(frozen=True, eq=False)
+class EdgeSet:
+    """Sub-pixel edge points of both images, in normalised rectified coordinates.
+
+    Attributes:
+        side: (K,) 0 left image, 1 right image.
+        xy: (K, 2) the edge point, (u - cx) / f, (v - cy) / f.
+        centre: (K, 2) the chord's centre it belongs to (to attach it to the axis).
+        weight: (K,) prior weight of each edge (1 for a clean edge).
+    """
+
+    side: np.ndarray
+    xy: np.ndarray
+    centre: np.ndarray
+    weight: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class TubeFit:
+    """The fitted tube.
+
+    Attributes:
+        knots, control: the axis B-spline (rectified left frame, metres).
+        radius_bins: (RADIUS_BINS,) radius in each bin of arc length (equal bins from base to tip), metres.
+        radius_std: (RADIUS_BINS,) their posterior standard deviations, metres.
+        covariance: the parameters' covariance (control points then radius bins).
+        rms_px: robust RMS of the edge residuals (pixels).
+        inliers: share of edges within the Huber threshold.
+        edge_u: (K,) where each edge is attached on the axis.
+        edge_residual_px: (K,) each edge's final residual.
+    """
+
+    knots: np.ndarray
+    control: np.ndarray
+    radius_bins: np.ndarray
+    radius_std: np.ndarray
+    covariance: np.ndarray
+    rms_px: float
+    inliers: float
+    edge_u: np.ndarray
+    edge_residual_px: np.ndarray
+
+    def points(self, us: np.ndarray) -> np.ndarray:
+        return evaluate_many(self.knots, self.control, np.asarray(us, np.float64))[0]
+
+    def point_std_m(self, us: np.ndarray) -> np.ndarray:
+        """(M,) standard deviation of each axis point across the axis, along its least certain
+        direction, metres. Sliding along the axis is left out: it moves no point off the curve."""
+        count = len(self.control)
+        m = len(us)
+        S = np.empty((m, 3, 3))
+        tangents = np.empty((m, 3))
+        for i, u in enumerate(us):
+            first, values, deriv = basis(self.knots, count, float(u))
+            block = self.covariance[3 * first:3 * (first + DEGREE + 1), 3 * first:3 * (first + DEGREE + 1)]
+            W = np.kron(values[None, :], np.eye(3))  # (3, 12): the point is a weighted sum of 4 control points
+            S[i] = W @ block @ W.T
+            tangents[i] = deriv @ self.control[first:first + DEGREE + 1]
+        tangents /= np.maximum(np.linalg.norm(tangents, axis=1, keepdims=True), 1e-12)
+        across = np.eye(3)[None] - tangents[:, :, None] * tangents[:, None, :]
+        S = across @ S @ across
+        return np.sqrt(np.maximum(np.linalg.eigvalsh(S)[:, -1], 0.0))
+
+
+# --- residuals --------------------------------------------------------------------------------
+
+
+@numba.njit(cache=True, nogil=True)
+def _edge_residual(C, D, r, x, y, sign):
+    """Distance (normalised image units) from (x, y) to the silhouette line on side ``sign``.
+
+    The tangent plane through the camera centre touches the tube along a generator; its normal
+    is n = sqrt(1 - rho^2) m - sign rho e, with m the normal of the plane holding the axis and
+    the centre, e the unit perpendicular from the centre's foot on the axis line to C, and
+    rho = r / (distance from the centre to the axis line).
+    """
+    tn = math.sqrt(D[0] * D[0] + D[1] * D[1] + D[2] * D[2])
+    if tn < 1e-12:
+        return np.nan
+    T0, T1, T2 = D[0] / tn, D[1] / tn, D[2] / tn
+    m0 = C[1] * T2 - C[2] * T1
+    m1 = C[2] * T0 - C[0] * T2
+    m2 = C[0] * T1 - C[1] * T0
+    mn = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+    if mn < 1e-12:
+        return np.nan
+    m0, m1, m2 = m0 / mn, m1 / mn, m2 / mn
+    ct = C[0] * T0 + C[1] * T1 + C[2] * T2
+    e0, e1, e2 = C[0] - ct * T0, C[1] - ct * T1, C[2] - ct * T2
+    d = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+    if d <= r or d < 1e-9:
+        return np.nan
+    e0, e1, e2 = e0 / d, e1 / d, e2 / d
+    rho = r / d
+    a = math.sqrt(1.0 - rho * rho)
+    n0 = a * m0 - sign * rho * e0
+    n1 = a * m1 - sign * rho * e1
+    n2 = a * m2 - sign * rho * e2
+    return (n0 * x + n1 * y + n2) / math.sqrt(n0 * n0 + n1 * n1)
+
+
+@numba.njit(cache=True, nogil=True)
+def _side_of(C, D, dx, dy):
+    """+1 or -1: the side of the plane through the centre and the axis that an edge lies on, from
+    the direction (dx, dy) from its chord's centre to it (robust to an axis that is a little off)."""
+    m0 = C[1] * D[2] - C[2] * D[1]
+    m1 = C[2] * D[0] - C[0] * D[2]
+    return 1.0 if m0 * dx + m1 * dy >= 0.0 else -1.0
+
+
+@numba.njit(cache=True, nogil=True)
+def _end_residual(C, D, r, x, y, cap):
+    """Along-curve distance (normalised units) from the projected end (plus ``cap`` times the
+    flat cap's overshoot r |t . s| / Z) to the observed end (x, y)."""
+    if C[2] <= 1e-6:
+        return np.nan
+    px, py = C[0] / C[2], C[1] / C[2]
+    tx = (D[0] * C[2] - C[0] * D[2]) / (C[2] * C[2])
+    ty = (D[1] * C[2] - C[1] * D[2]) / (C[2] * C[2])
+    tl = math.sqrt(tx * tx + ty * ty)
+    if tl < 1e-12:
+        return np.nan
+    tx, ty = tx / tl, ty / tl
+    over = 0.0
+    if cap != 0.0:
+        dn = math.sqrt(D[0] * D[0] + D[1] * D[1] + D[2] * D[2])
+        cn = math.sqrt(C[0] * C[0] + C[1] * C[1] + C[2] * C[2])
+        ts = abs(D[0] * C[0] + D[1] * C[1] + D[2] * C[2]) / (dn * cn)
+        over = cap * r * ts / C[2]
+    return (px + over * tx - x) * tx + (py + over * ty - y) * ty
+
+
+@numba.njit(cache=True, nogil=True)
+def _residual_of(kind, C, D, r, x, y, extra):
+    if kind == 0:
+        return _edge_residual(C, D, r, x, y, extra)
+    return _end_residual(C, D, r, x, y, extra)
+
+
+@numba.njit(cache=True, nogil=True)
+def _normal_equations(knots, control, radii, bins, baseline, focal, kinds, sides, us, xs, ys, extras, sigmas, huber,
+                      want_system):
+    """Robust cost, residuals (px) and, if asked, J^T W J and J^T W r over every observation."""
+    count = control.shape[0]
+    nr = radii.shape[0]
+    npar = 3 * count + nr
+    A = np.zeros((npar, npar))
+    g = np.zeros(npar)
+    residuals = np.full(kinds.shape[0], np.nan)
+    cost = 0.0
+    idx = np.empty(3 * (DEGREE + 1) + 1, np.int64)
+    jac = np.empty(3 * (DEGREE + 1) + 1)
+    C = np.empty(3)
+    D = np.empty(3)
+    Cp = np.empty(3)
+    Dp = np.empty(3)
+    for i in range(kinds.shape[0]):
+        first, values, deriv = basis(knots, count, us[i])
+        for c in range(3):
+            C[c] = 0.0
+            D[c] = 0.0
+        for j in range(DEGREE + 1):
+            for c in range(3):
+                C[c] += values[j] * control[first + j, c]
+                D[c] += deriv[j] * control[first + j, c]
+        if sides[i] == 1:
+            C[0] -= baseline
+        rj = bins[i]
+        r = radii[rj]
+        res = _residual_of(kinds[i], C, D, r, xs[i], ys[i], extras[i])
+        if res != res:
+            continue
+        res_px = res * focal
+        residuals[i] = res_px
+        scaled = res_px / sigmas[i]
+        a = abs(res_px)
+        w = 1.0 if a <= huber else huber / a
+        cost += w * scaled * scaled
+        if not want_system:
+            continue
+        # finite-difference partials of the residual in C, D and r
+        gC = np.empty(3)
+        gD = np.empty(3)
+        dn = math.sqrt(D[0] * D[0] + D[1] * D[1] + D[2] * D[2])
+        for c in range(3):
+            for k in range(3):
+                Cp[k] = C[k]
+                Dp[k] = D[k]
+            h = 1e-6
+            Cp[c] = C[c] + h
+            hi = _residual_of(kinds[i], Cp, D, r, xs[i], ys[i], extras[i])
+            Cp[c] = C[c] - h
+            lo = _residual_of(kinds[i], Cp, D, r, xs[i], ys[i], extras[i])
+            gC[c] = (hi - lo) / (2.0 * h) * focal
+            hd = 1e-6 * dn
+            Dp[c] = D[c] + hd
+            hi = _residual_of(kinds[i], C, Dp, r, xs[i], ys[i], extras[i])
+            Dp[c] = D[c] - hd
+            lo = _residual_of(kinds[i], C, Dp, r, xs[i], ys[i], extras[i])
+            gD[c] = (hi - lo) / (2.0 * hd) * focal
+        hr = 1e-7
+        gr = (_residual_of(kinds[i], C, D, r + hr, xs[i], ys[i], extras[i])
+              - _residual_of(kinds[i], C, D, r - hr, xs[i], ys[i], extras[i])) / (2.0 * hr) * focal
+        n = 0
+        for j in range(DEGREE + 1):
+            for c in range(3):
+                idx[n] = (first + j) * 3 + c
+                jac[n] = gC[c] * values[j] + gD[c] * deriv[j]
+                n += 1
+        idx[n] = 3 * count + rj
+        jac[n] = gr
+        n += 1
+        ws = w / (sigmas[i] * sigmas[i])
+        for p in range(n):
+            if jac[p] != jac[p]:
+                continue
+            g[idx[p]] += ws * jac[p] * res_px
+            for q in range(n):
+                if jac[q] == jac[q]:
+                    A[idx[p], idx[q]] += ws * jac[p] * jac[q]
+    return cost, residuals, A, g
+
+
+@numba.njit(cache=True, nogil=True)
+def _attach(knots, control, baseline, sides, centres, samples):
+    """u of the axis point whose projection is nearest each chord centre, in its own image."""
+    us = np.linspace(0.0, 1.0, samples)
+    points, _ = evaluate_many(knots, control, us)
+    out = np.empty(sides.shape[0])
+    dist = np.empty(samples)
+    for i in range(sides.shape[0]):
+        best = 1e18
+        best_k = 0
+        for k in range(samples):
+            X = points[k, 0] - (baseline if sides[i] == 1 else 0.0)
+            Z = points[k, 2]
+            if Z <= 1e-6:
+                dist[k] = 1e18
+                continue
+            dx = X / Z - centres[i, 0]
+            dy = points[k, 1] / Z - centres[i, 1]
+            dist[k] = dx * dx + dy * dy
+            if dist[k] < best:
+                best = dist[k]
+                best_k = k
+        u = us[best_k]
+        # between the neighbouring samples: the vertex of the parabola through the squared distances
+        if 0 < best_k < samples - 1:
+            a, b, c = dist[best_k - 1], dist[best_k], dist[best_k + 1]
+            den = a - 2.0 * b + c
+            if den > 0.0:
+                u += 0.5 * (a - c) / den * (us[1] - us[0])
+        out[i] = min(max(u, 0.0), 1.0)
+    return out
+
+
+def _base_rows(control: np.ndarray, point: np.ndarray, direction: np.ndarray,
+               count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Whitened residuals and Jacobian rows of the base priors: P0 at the point, P1 - P0 along the direction."""
+    rows = np.zeros((6, 3 * count))
+    res = np.empty(6)
+    chord = control[1] - control[0]
+    length = max(float(np.linalg.norm(chord)), 1e-9)
+    for c in range(3):
+        rows[c, c] = 1.0 / BASE_SIGMA_M
+        res[c] = (control[0, c] - point[c]) / BASE_SIGMA_M
+        rows[3 + c, c] = -1.0 / (length * BASE_DIRECTION_SIGMA)
+        rows[3 + c, 3 + c] = 1.0 / (length * BASE_DIRECTION_SIGMA)
+        res[3 + c] = (chord[c] / length - direction[c]) / BASE_DIRECTION_SIGMA
+    return rows, res
+
+
+def arc_fraction(knots: np.ndarray, control: np.ndarray, us: np.ndarray) -> np.ndarray:
+    """Arc length from the base as a fraction of the whole axis, at each u."""
+    grid = np.linspace(0.0, 1.0, CURVE_SAMPLES)
+    points = evaluate_many(knots, control, grid)[0]
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    return np.interp(us, grid, arc / max(arc[-1], 1e-12))
+
+
+def radius_bins(knots: np.ndarray, control: np.ndarray, us: np.ndarray, count: int) -> np.ndarray:
+    """The radius bin (equal bins of arc length, base to tip) each u falls in."""
+    return np.minimum((arc_fraction(knots, control, us) * count).astype(np.int64), count - 1)
+
+
+def _smoothness(count: int) -> np.ndarray:
+    """(3 (count - 3), 3 count) third-difference operator on the control points.
+
+    Third, not second, differences: a bend of constant curvature (how a PMA section bends) costs
+    nothing, a wiggle does; where the images do not fix the depth, the axis continues its bend.
+    """
+    S = np.zeros((3 * (count - 3), 3 * count))
+    for k in range(count - 3):
+        # At the free ends, beyond the last edges, only this prior shapes the axis: hold it firmer
+        # there, so the tip continues its bend instead of hooking.
+        end = END_STIFFNESS if k in (0, count - 4) else 1.0
+        for c in range(3):
+            row = 3 * k + c
+            for j, w in enumerate((-1.0, 3.0, -3.0, 1.0)):
+                S[row, 3 * (k + j) + c] = w * end
+    return S
+
+
+def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.ndarray, radius_prior: np.ndarray,
+             radius_sigma: np.ndarray, *, focal_px: float, baseline_m: float, cap: float = 1.0,
+             control_points: int = CONTROL_POINTS, base_prior: tuple[np.ndarray, np.ndarray] | None = None,
+             initial_control: np.ndarray | None = None) -> TubeFit | None:
+    """Fit the tube to the edges of both images.
+
+    Args:
+        edges: sub-pixel edge points of both images (normalised rectified coordinates).
+        ends: "base" and "tip": (2, 2) the observed ends in the left and right image (normalised),
+            rows may be NaN where unseen.
+        initial_points: (M, 3) a first 3D centerline, base first (rectified left frame, metres);
+            ignored when ``initial_control`` is given.
+        radius_prior, radius_sigma: (RADIUS_BINS,) prior radius of each bin of arc length (base to tip)
+            and its uncertainty, metres.
+        focal_px: rectified focal length; baseline_m: stereo baseline.
+        cap: 1 for flat ends (a tube ending in a plane across its axis, at the mount and at the tip:
+            its image overshoots the axis end by r |t . s| / Z), 0 for ends seen as points.
+        control_points: B-spline control points of the axis.
+        base_prior: (point (3,), unit direction (3,)) where the axis leaves its mount, learned from
+            earlier frames (rectified left frame), or None. The mount is rigid: the base's first
+            visible point and the arm's direction there stay put while the arm bends.
+        initial_control: (control_points, 3) control points to start from (the previous frame's fit).
+
+    Returns:
+        The fit, or None when it cannot be set up (too few edges, degenerate initial curve).
+    """
+    if initial_control is not None:
+        control = np.array(initial_control, np.float64)
+        knots = clamped_knots(len(control))
+    elif len(initial_points) < 4:
+        return None
+    else:
+        knots, control = fit_control_points(initial_points, control_points)
+    if len(edges.side) < 12:
+        return None
+    radii = np.asarray(radius_prior, np.float64).copy()
+    count = len(control)
+    # Observations: edges, then the ends (base: no overshoot; tip: the cap's).
+    kinds = [np.zeros(len(edges.side), np.int64)]
+    sides = [edges.side.astype(np.int64)]
+    xs, ys = [edges.xy[:, 0]], [edges.xy[:, 1]]
+    sigmas = [EDGE_SIGMA_PX / np.maximum(edges.weight, 1e-3)]
+    end_us, end_extra = [], []
+    for name, u_end, extra in (("base", 0.0, -cap), ("tip", 1.0, cap)):  # overshoot beyond each end
+        # The left image's end says where along the axis the tube ends. The right image's would add
+        # a disparity, but a cap's outline is not the same point seen from two places, and its bias
+        # bent the last span towards the camera (c-bend scene: 12 mm at the tip with both, 5 with one).
+        for side in END_SIDES:
+            point = ends[name][side]
+            if np.all(np.isfinite(point)):
+                kinds.append(np.array([1]))
+                sides.append(np.array([side]))
+                xs.append(np.array([point[0]]))
+                ys.append(np.array([point[1]]))
+                sigmas.append(np.array([END_SIGMA_PX]))
+                end_us.append(u_end)
+                end_extra.append(extra)
+    kinds, sides = np.concatenate(kinds), np.concatenate(sides)
+    xs, ys, sigmas = np.concatenate(xs), np.concatenate(ys), np.concatenate(sigmas)
+    n_edges = len(edges.side)
+    us = np.concatenate([_attach(knots, control, baseline_m, sides[:n_edges], edges.centre, CURVE_SAMPLES),
+                         np.array(end_us)])
+    # Which silhouette line each edge belongs to, from the initial tube (edges lie well to one side).
+    extras = np.concatenate([_edge_sides(knots, control, baseline_m, sides[:n_edges], us[:n_edges], edges.xy,
+                                         edges.centre), np.array(end_extra)])
+    S = _smoothness(count)
+    w_smooth = 1.0 / SMOOTH_SIGMA_M
+    npar = 3 * count + len(radii)
+    prior_w = 1.0 / np.asarray(radius_sigma, np.float64) ** 2
+    bins = radius_bins(knots, control, us, len(radii))
+
+    def total(control_, radii_, system):
+        cost, residuals, A, g = _normal_equations(knots, control_, radii_, bins, baseline_m, focal_px, kinds, sides,
+                                                  us, xs, ys, extras, sigmas, HUBER_PX, system)
+        x = control_.reshape(-1)
+        sx = S @ x * w_smooth
+        cost += float(sx @ sx)
+        dr = radii_ - radius_prior
+        cost += float(np.sum(prior_w * dr * dr))
+        if system:
+            A[:3 * count, :3 * count] += (w_smooth ** 2) * (S.T @ S)
+            g[:3 * count] += w_smooth * (S.T @ sx)
+            A[3 * count:, 3 * count:] += np.diag(prior_w)
+            g[3 * count:] += prior_w * dr
+        if base_prior is not None:
+            # C(0) = P0 and C'(0) is along P1 - P0 on a clamped spline: both priors are (nearly) linear.
+            point, direction = base_prior
+            rows, res = _base_rows(control_, point, direction, count)
+            cost += float(res @ res)
+            if system:
+                A[:3 * count, :3 * count] += rows.T @ rows
+                g[:3 * count] += rows.T @ res
+        return cost, residuals, A, g
+
+    damping = 1e-4
+    cost, residuals, A, g = total(control, radii, True)
+    for iteration in range(ITERATIONS):
+        converged = False
+        while True:
+            H = A + damping * np.diag(np.diag(A) + 1e-12)
+            try:
+                step = -np.linalg.solve(H, g)
+            except np.linalg.LinAlgError:
+                return None
+            new_control = control + step[:3 * count].reshape(count, 3)
+            new_radii = np.clip(radii + step[3 * count:], 1e-4, 1.0)
+            new_cost = total(new_control, new_radii, False)[0]
+            if np.isfinite(new_cost) and new_cost <= cost:
+                control, radii = new_control, new_radii
+                damping = max(damping / 10.0, 1e-7)
+                converged = cost - new_cost < CONVERGED * cost and iteration + 1 >= REASSIGN_AT[0]
+                break
+            damping *= 10.0
+            if damping > 1e6:
+                break
+        if iteration + 1 in REASSIGN_AT:
+            us[:n_edges] = _attach(knots, control, baseline_m, sides[:n_edges], edges.centre, CURVE_SAMPLES)
+            bins = radius_bins(knots, control, us, len(radii))
+        cost, residuals, A, g = total(control, radii, True)
+        if damping > 1e6 or converged:
+            break
+    edge_res = residuals[:n_edges]
+    finite = np.isfinite(edge_res)
+    if finite.sum() < 12:
+        return None
+    inliers = float(np.mean(np.abs(edge_res[finite]) <= HUBER_PX))
+    core = np.abs(edge_res[finite]) <= HUBER_PX
+    rms = float(np.sqrt(np.mean(edge_res[finite][core] ** 2))) if core.any() else math.inf
+    try:
+        covariance = np.linalg.inv(A + 1e-12 * np.eye(npar))
+    except np.linalg.LinAlgError:
+        return None
+    # Scale by the observed noise when it exceeds the assumed one (never below it).
+    covariance *= max(1.0, (rms / EDGE_SIGMA_PX) ** 2)
+    radius_std = np.sqrt(np.maximum(np.diag(covariance)[3 * count:], 0.0))
+    return TubeFit(knots, control, radii, radius_std, covariance, rms, inliers, us[:n_edges].copy(), edge_res)
+
+
+def fuse_radius(mean: np.ndarray, info: np.ndarray, fit: TubeFit, *, floor_m: float = 0.001,
+                forget: float = 0.995) -> tuple[np.ndarray, np.ndarray]:
+    """The radius profile learned over frames, updated with one fit's measurement.
+
+    Each bin fuses the fit's posterior (inverse-variance weights) where the fit measured it well
+    (standard deviation under a millimetre); the accumulated information decays slowly, so a
+    radius that changes with pressure is followed, and never exceeds that of ``floor_m``.
+
+    Returns:
+        (mean, information = 1 / variance) per bin.
+    """
+    info = info * forget
+    measured = np.isfinite(fit.radius_std) & (fit.radius_std < 1e-3)
+    w = np.where(measured, 1.0 / np.maximum(fit.radius_std, 1e-5) ** 2, 0.0)
+    mean = np.where(measured, (mean * info + fit.radius_bins * w) / np.maximum(info + w, 1e-12), mean)
+    info = np.minimum(info + w, 1.0 / floor_m**2)
+    return mean, info
+
+
+@numba.njit(cache=True, nogil=True)
+def _edge_sides(knots, control, baseline, sides, us, xy, centres):
+    out = np.empty(sides.shape[0])
+    count = control.shape[0]
+    C = np.empty(3)
+    D = np.empty(3)
+    for i in range(sides.shape[0]):
+        first, values, deriv = basis(knots, count, us[i])
+        for c in range(3):
+            C[c] = 0.0
+            D[c] = 0.0
+        for j in range(DEGREE + 1):
+            for c in range(3):
+                C[c] += values[j] * control[first + j, c]
+                D[c] += deriv[j] * control[first + j, c]
+        if sides[i] == 1:
+            C[0] -= baseline
+        out[i] = _side_of(C, D, xy[i, 0] - centres[i, 0], xy[i, 1] - centres[i, 1])
+    return out
