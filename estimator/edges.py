@@ -5,7 +5,8 @@ in disparity is six millimetres of depth, and on a straight tube it does not ave
 each chord of the 2D centerline is sampled across the tube in the image itself; on each side the
 edge is where the profile crosses halfway between the arm's level just inside and the
 background's level just outside (an anti-aliased or blurred step crosses its midpoint at the
-true edge).
+true edge). The levels are read where the profile has settled: a first crossing tells how wide the
+step is (a fast pan smears it over several pixels), and the levels are read again beyond it.
 
 The profile is the colour projected onto the arm-minus-background difference in a luma-weighted
 space: a ZED delivers YUYV 4:2:2, whose chroma is shared by horizontal pixel pairs, so chroma
@@ -23,6 +24,7 @@ SEARCH_PX = 3.0  # how far from the mask's edge the intensity edge may lie
 LEVEL_PX = 2.5  # the inside and outside levels are read over this span, just beyond the search window
 CHROMA_WEIGHT = 0.35  # weight of Cb, Cr against luma in the profile
 MIN_CONTRAST = 12.0  # weighted units (about digital numbers of luma): below it, no edge
+MAX_BLUR_PX = 6.0  # how wide a blurred step may be for its levels to be read beyond it
 
 
 @numba.njit(cache=True, nogil=True)
@@ -48,6 +50,51 @@ def _ycc(image, x, y, out):
 
 
 @numba.njit(cache=True, nogil=True)
+def _levels(ts, prof, total, centre, sign, gap):
+    """Mean colours just inside and just outside an edge near ``centre``, read from ``gap`` to
+    ``gap + LEVEL_PX`` on each side; returns (inside, outside, counts ok)."""
+    inside = np.zeros(3)
+    outside = np.zeros(3)
+    ni = 0
+    no = 0
+    for k in range(total):
+        d = (ts[k] - centre) * sign  # > 0 outside
+        if -gap - LEVEL_PX <= d <= -gap:
+            inside += prof[k]
+            ni += 1
+        elif gap <= d <= gap + LEVEL_PX:
+            outside += prof[k]
+            no += 1
+    if ni == 0 or no == 0:
+        return inside, outside, False
+    return inside / ni, outside / no, True
+
+
+@numba.njit(cache=True, nogil=True)
+def _crossing(ts, prof, total, inside, outside, level, centre, reach):
+    """Where the profile, normalised to 1 inside and 0 outside, crosses ``level`` nearest ``centre``
+    (within ``reach``); NaN if it does not."""
+    diff = inside - outside
+    norm2 = diff[0] * diff[0] + diff[1] * diff[1] + diff[2] * diff[2]
+    best = 1e9
+    found = np.nan
+    prev_p = 0.0
+    prev_t = 0.0
+    for k in range(total):
+        p = ((prof[k, 0] - outside[0]) * diff[0] + (prof[k, 1] - outside[1]) * diff[1]
+             + (prof[k, 2] - outside[2]) * diff[2]) / norm2
+        t = ts[k]
+        if k > 0 and (prev_p - level) * (p - level) <= 0.0 and prev_p != p:
+            tc = prev_t + (level - prev_p) * (t - prev_t) / (p - prev_p)
+            if abs(tc - centre) <= reach and abs(tc - centre) < best:
+                best = abs(tc - centre)
+                found = tc
+        prev_p = p
+        prev_t = t
+    return found
+
+
+@numba.njit(cache=True, nogil=True)
 def _edges(image, points, normals, half, ok):
     m = points.shape[0]
     out = np.full((m, 2), np.nan)  # signed distance of the edge from the point along -n (0) and +n (1)
@@ -56,7 +103,8 @@ def _edges(image, points, normals, half, ok):
     for i in range(m):
         if ok[i] and half[i] > reach_max:
             reach_max = half[i]
-    count = int((reach_max + SEARCH_PX + LEVEL_PX + 2.0) / STEP_PX) + 1
+    margin = SEARCH_PX + LEVEL_PX + MAX_BLUR_PX + 1.0
+    count = int((reach_max + margin + 1.0) / STEP_PX) + 1
     ts = np.empty(2 * count + 1)
     prof = np.empty((2 * count + 1, 3))
     sample = np.empty(3)
@@ -65,8 +113,7 @@ def _edges(image, points, normals, half, ok):
             continue
         x, y = points[i, 0], points[i, 1]
         nx, ny = normals[i, 0], normals[i, 1]
-        reach = half[i] + SEARCH_PX + LEVEL_PX + 1.0
-        n = int(reach / STEP_PX)
+        n = int((half[i] + margin) / STEP_PX)
         valid = True
         for k in range(-n, n + 1):
             t = k * STEP_PX
@@ -83,45 +130,33 @@ def _edges(image, points, normals, half, ok):
         for side in range(2):
             sign = -1.0 if side == 0 else 1.0
             guess = sign * half[i]
-            # Inside and outside colours around the mask's edge.
-            inside = np.zeros(3)
-            outside = np.zeros(3)
-            ni = 0
-            no = 0
-            for k in range(total):
-                d = (ts[k] - guess) * sign  # > 0 outside
-                if -SEARCH_PX - LEVEL_PX <= d <= -SEARCH_PX:
-                    inside += prof[k]
-                    ni += 1
-                elif SEARCH_PX <= d <= SEARCH_PX + LEVEL_PX:
-                    outside += prof[k]
-                    no += 1
-            if ni == 0 or no == 0:
+            # Pass 1: levels just beyond the search window around the mask's edge.
+            inside, outside, ok_levels = _levels(ts, prof, total, guess, sign, SEARCH_PX)
+            if not ok_levels:
                 continue
-            inside /= ni
-            outside /= no
             diff = inside - outside
             norm2 = diff[0] * diff[0] + diff[1] * diff[1] + diff[2] * diff[2]
             if norm2 < MIN_CONTRAST * MIN_CONTRAST:
                 continue
-            # Normalised profile: 1 inside, 0 outside; crossing of 0.5 nearest the guess.
-            best = 1e9
-            found = np.nan
-            prev_p = 0.0
-            prev_t = 0.0
-            for k in range(total):
-                p = ((prof[k, 0] - outside[0]) * diff[0] + (prof[k, 1] - outside[1]) * diff[1]
-                     + (prof[k, 2] - outside[2]) * diff[2]) / norm2
-                t = ts[k]
-                if k > 0 and (prev_p - 0.5) * (p - 0.5) <= 0.0 and prev_p != p:
-                    tc = prev_t + (0.5 - prev_p) * (t - prev_t) / (p - prev_p)
-                    if abs(tc - guess) <= SEARCH_PX and abs(tc - guess) < best:
-                        best = abs(tc - guess)
-                        found = tc
-                prev_p = p
-                prev_t = t
-            if found == found:
-                out[i, side] = found
+            edge = _crossing(ts, prof, total, inside, outside, 0.5, guess, SEARCH_PX)
+            if edge != edge:
+                continue
+            # Pass 2, for blur (a fast pan, defocus): how wide is the step? Read the levels beyond it.
+            a = _crossing(ts, prof, total, inside, outside, 0.2, edge, SEARCH_PX + MAX_BLUR_PX)
+            b = _crossing(ts, prof, total, inside, outside, 0.8, edge, SEARCH_PX + MAX_BLUR_PX)
+            if a == a and b == b:
+                gap = min(max(0.8 * abs(a - b) + 1.0, 2.0), SEARCH_PX + MAX_BLUR_PX - LEVEL_PX)
+                inside2, outside2, ok2 = _levels(ts, prof, total, edge, sign, gap)
+                if ok2:
+                    diff2 = inside2 - outside2
+                    n2 = diff2[0] * diff2[0] + diff2[1] * diff2[1] + diff2[2] * diff2[2]
+                    if n2 >= MIN_CONTRAST * MIN_CONTRAST:
+                        refined = _crossing(ts, prof, total, inside2, outside2, 0.5, edge, gap)
+                        if refined == refined:
+                            edge = refined
+                            norm2 = n2
+            if abs(edge - guess) <= SEARCH_PX + 1.0:
+                out[i, side] = edge
                 contrast[i, side] = np.sqrt(norm2)
     return out, contrast
 

@@ -117,6 +117,7 @@ class _Side:
     learn: tuple | None = None  # (hsv, gate, mask, offset) of the region: what the colour model learns from
     image: np.ndarray | None = None  # the rectified region of interest (BGR), for sub-pixel edges
     offset: np.ndarray | None = None  # its top-left corner on the rectified canvas
+    edges: tuple | None = None  # (edge points, their chords' centres, (base, tip) ends), canvas pixels
 
 
 class CenterlineEstimator:
@@ -281,7 +282,11 @@ class CenterlineEstimator:
             crop = self._rect.rectify_image(image, side, roi)
         with _timed(timings, "segment"):
             learn = located is not None
-            mask, hsv, gate = segment(crop, cfg, self._gate_low, self._colour.apply if learn else None)
+            colour_filter = None
+            if learn and self._colour.active:
+                colour_filter = self._protected_colour_filter(side, roi)
+            # Where the arm was located, only what lies near it is kept below: specks elsewhere do not matter.
+            mask, hsv, gate = segment(crop, cfg, self._gate_low, colour_filter, drop_small=not learn)
             if located is not None:
                 mask = cv2.bitwise_and(mask, _upsampled(located[1], roi, mask.shape, self._scale))
             if not mask.any():
@@ -302,6 +307,7 @@ class CenterlineEstimator:
                 raise _NoArmError(f"no centerline found in the {side} image")
         curve = None
         width = 0.0
+        edges = None
         if cfg.medial_refinement:
             with _timed(timings, "refine"):
                 # The SOM's chain is close to the axis; the baselines' zig-zag needs a second pass.
@@ -317,13 +323,16 @@ class CenterlineEstimator:
                 _check_self_approach(curve.points, width, cfg.max_self_approach, side)
                 curve = curve.shifted(offset)
                 nodes = resample_polyline(curve.points, cfg.n_points)
+            if cfg.tube_fit:
+                with _timed(timings, "edges"):
+                    edges = _silhouette_edges(crop, curve, offset)
         else:
             nodes = nodes + offset
             width = float(np.count_nonzero(mask)) / max(_polyline_length(nodes), 1.0)
             with self._plausibility("self_approach"):
                 _check_self_approach(nodes, width, cfg.max_self_approach, side)
         return _Side(nodes, curve, width, int(np.count_nonzero(mask)), (hsv, gate, mask, offset) if learn else None,
-                     crop, offset)
+                     crop, offset, edges)
 
     def _locate(self, images: dict[str, np.ndarray]) -> dict[str, tuple[tuple[int, int, int, int], np.ndarray]]:
         """Where the arm is in each image: a region of interest and the coarse mask of its pixels.
@@ -381,9 +390,35 @@ class CenterlineEstimator:
             out[side] = ((max(x0 - m, 0), max(y0 - m, 0), min(x1 + m, w), min(y1 + m, h)), keep[side])
         return out
 
+    def _protected_colour_filter(self, side: str, roi: tuple[int, int, int, int]):
+        """The colour model's filter, except within the arm's reach of the previous frame's centerline.
+
+        A blurred or anti-aliased edge mixes the arm's colour with the wall's into the hue and
+        saturation of wood or skin: there the model would cut the arm's own edges. Near where the
+        arm was, every colour of the gate stays; beyond, where a distractor touching the arm
+        bulges out of the tube, the model decides.
+        """
+        previous = self._warm[side]
+        if previous is None or side not in self._track:
+            return self._colour.apply
+        width = self._track[side][0] * self._scale
+        offset = np.array(roi[:2], dtype=np.float64)
+        reach = 0.5 * width + max(0.25 * width, 4.0)
+
+        def apply(hsv: np.ndarray, gate: np.ndarray) -> np.ndarray:
+            near = _corridor_mask(gate.shape, _extended(previous - offset, width), reach)
+            return cv2.bitwise_or(self._colour.apply(hsv, gate), cv2.bitwise_and(gate, near))
+
+        return apply
+
     def _learn_colours(self, sides: dict[str, _Side]) -> None:
-        """Teach the colour model the arm's colours (its mask's interior) against the gate's other
-        colours more than two arm widths from its centerline, in a trusted frame."""
+        """Teach the colour model the arm's colours against the gate's other colours more than two arm
+        widths from its centerline, in a trusted frame.
+
+        The arm's samples are its mask's pixels within its half width of the centerline: edge pixels
+        included (blurred or shadowed edges mix the arm's colour with the background's and must stay
+        the arm's), a distractor bulging out of the silhouette excluded.
+        """
         self._updates = getattr(self, "_updates", 0) + 1
         if self._updates > 10 and self._updates % 5:  # learn every frame at first, then every fifth
             return
@@ -392,8 +427,9 @@ class CenterlineEstimator:
             if s.learn is None or s.curve is None:
                 continue
             hsv, gate, mask, offset = s.learn
-            interior = cv2.erode(mask, np.ones((5, 5), np.uint8))
-            near = _corridor_mask(mask.shape, s.curve.points - offset, 2.0 * s.width_px)
+            curve = s.curve.points - offset
+            interior = cv2.bitwise_and(mask, _corridor_mask(mask.shape, curve, 0.5 * s.width_px))
+            near = _corridor_mask(mask.shape, curve, 2.0 * s.width_px)
             self._colour.update(hsv, gate, interior, cv2.bitwise_not(near))
 
     def _keep_tracked(self, gate: dict[str, np.ndarray]) -> dict[str, np.ndarray] | None:
@@ -424,7 +460,9 @@ class CenterlineEstimator:
             curve = None if r.curve is None else Centerline2D(r.curve.points[::-1], r.curve.valid[::-1],
                                                               r.curve.half_width_px[::-1],
                                                               r.curve.arc_px[-1] - r.curve.arc_px[::-1])
-            sides["right"] = _Side(r.nodes[::-1].copy(), curve, r.width_px, r.area_px, r.learn, r.image, r.offset)
+            edges = None if r.edges is None else (r.edges[0], r.edges[1], r.edges[2][::-1].copy())
+            sides["right"] = _Side(r.nodes[::-1].copy(), curve, r.width_px, r.area_px, r.learn, r.image, r.offset,
+                                   edges)
 
     # --- stereo -------------------------------------------------------------------------
 
@@ -531,11 +569,7 @@ class CenterlineEstimator:
                   warm_control: np.ndarray | None = None) -> np.ndarray:
         """The 3D centerline from a tube fitted to the sub-pixel edges of both images (``estimator.tube_fit``),
         started from the disparity-profile estimate or the previous frame's tube; (n, 3) rectified-frame
-        points, base first.
-
-        Edges are looked for on both sides of every sample of the 2D centerline between its
-        outermost clean chords, at the half width its clean neighbours show: where one side of
-        the tube touches a distractor or is cut by an occluder, the other side still counts.
+        points, base first. The edges were measured with each image (``_silhouette_edges``).
         """
         cfg = self.config
         P = self._rect.P["left"]
@@ -543,24 +577,14 @@ class CenterlineEstimator:
         side_ids, xy, chord = [], [], []
         ends = {"base": np.full((2, 2), np.nan), "tip": np.full((2, 2), np.nan)}
         for k, side in enumerate(SIDES):
-            s = sides[side]
-            curve = s.curve
-            tangent = np.gradient(curve.points, axis=0)
-            tangent /= np.linalg.norm(tangent, axis=1, keepdims=True) + 1e-12
-            normals = np.column_stack([-tangent[:, 1], tangent[:, 0]])
-            # Only clean chords: searching at the neighbours' width where a chord is not clean finds the
-            # baseplates' and the caps' edges as often as the tube's (measured: 2.2 -> 9.9 mm).
-            half, inside = curve.half_width_px, curve.valid
-            pick = inside & (np.arange(len(inside)) % EDGE_STRIDE == 0)
-            offsets, _ = subpixel_edges(s.image, curve.points - s.offset, normals, half, pick)
-            for column in range(2):
-                ok = np.isfinite(offsets[:, column])
-                edge = curve.points[ok] + offsets[ok, column][:, None] * normals[ok]
-                xy.append((edge - centre) / f)
-                chord.append((curve.points[ok] - centre) / f)
-                side_ids.append(np.full(int(ok.sum()), k))
-            for name, end in (("base", 0), ("tip", -1)):
-                ends[name][k] = (_subpixel_end(s, curve, end) - centre) / f
+            if sides[side].edges is None:
+                raise _NoArmError(f"no silhouette edges measured in the {side} image")
+            points, centres, (base, tip) = sides[side].edges
+            xy.append((points - centre) / f)
+            chord.append((centres - centre) / f)
+            side_ids.append(np.full(len(points), k))
+            ends["base"][k] = (base - centre) / f
+            ends["tip"][k] = (tip - centre) / f
         side_ids = np.concatenate(side_ids)
         edges = EdgeSet(side_ids, np.concatenate(xy), np.concatenate(chord), np.ones(len(side_ids)))
         if self._radius is None:
@@ -675,7 +699,30 @@ def _timed(timings: dict, stage: str):
         timings[stage] = timings.get(stage, 0.0) + (time.perf_counter() - start) * 1e3
 
 
-def _subpixel_end(side: _Side, curve: Centerline2D, end: int) -> np.ndarray:
+def _silhouette_edges(image: np.ndarray, curve: Centerline2D, offset: np.ndarray):
+    """Sub-pixel silhouette edges of one image's clean chords and its two ends (rectified canvas pixels).
+
+    Only clean chords: searching at the neighbours' width where a chord is not clean finds the
+    baseplates' and the caps' edges as often as the tube's (measured: 2.2 -> 9.9 mm RMSE).
+
+    Returns:
+        (edge points (K, 2), the centres of their chords (K, 2), (2, 2) base and tip ends).
+    """
+    tangent = np.gradient(curve.points, axis=0)
+    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True) + 1e-12
+    normals = np.column_stack([-tangent[:, 1], tangent[:, 0]])
+    pick = curve.valid & (np.arange(len(curve.valid)) % EDGE_STRIDE == 0)
+    offsets, _ = subpixel_edges(image, curve.points - offset, normals, curve.half_width_px, pick)
+    points, centres = [], []
+    for column in range(2):
+        ok = np.isfinite(offsets[:, column])
+        points.append(curve.points[ok] + offsets[ok, column][:, None] * normals[ok])
+        centres.append(curve.points[ok])
+    ends = np.array([_subpixel_end(image, offset, curve, end) for end in (0, -1)])
+    return np.concatenate(points), np.concatenate(centres), ends
+
+
+def _subpixel_end(image: np.ndarray, offset: np.ndarray, curve: Centerline2D, end: int) -> np.ndarray:
     """Where the silhouette ends along the centerline (rectified pixels), from the image: the mask's
     end moved to the halfway crossing of the colour profile along the centerline's direction."""
     inside = np.flatnonzero(curve.valid)
@@ -687,9 +734,9 @@ def _subpixel_end(side: _Side, curve: Centerline2D, end: int) -> np.ndarray:
     if reach < 1.0:
         return curve.points[end]
     direction /= reach
-    point = curve.points[i][None] - side.offset
+    point = curve.points[i][None] - offset
     # A "chord" along the centerline: its +n edge guess is the mask's end.
-    offsets, _ = subpixel_edges(side.image, point, direction[None], np.array([reach]), np.array([True]))
+    offsets, _ = subpixel_edges(image, point, direction[None], np.array([reach]), np.array([True]))
     if not np.isfinite(offsets[0, 1]):
         return curve.points[end]
     return curve.points[i] + offsets[0, 1] * direction

@@ -42,12 +42,14 @@ def arm_mask(image_bgr: np.ndarray, config: EstimatorConfig,
 
 
 def segment(image_bgr: np.ndarray, config: EstimatorConfig, hsv_low: tuple[int, int, int] | None = None,
-            colour_filter=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            colour_filter=None, drop_small: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`arm_mask` that also returns what a colour model learns from.
 
     Args:
         colour_filter: ``f(hsv, gate) -> mask`` applied to the gate before the morphology (a
             learned colour model removing background colours), or None.
+        drop_small: remove regions smaller than ``config.min_area_px`` (unneeded when the caller
+            keeps only what lies near the arm anyway).
 
     Returns:
         (mask, hsv, gate): the arm mask, the median-filtered image in HSV, the raw colour gate.
@@ -62,7 +64,7 @@ def segment(image_bgr: np.ndarray, config: EstimatorConfig, hsv_low: tuple[int, 
     if config.close_ksize > 1:
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (config.close_ksize, config.close_ksize))
         mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, kernel)
-    return remove_small_regions(mask, config.min_area_px), hsv, gate
+    return (remove_small_regions(mask, config.min_area_px) if drop_small else mask), hsv, gate
 
 
 def remove_small_regions(mask: np.ndarray, min_area_px: int) -> np.ndarray:
