@@ -50,6 +50,10 @@ COARSE_WIDTH_PX = 320  # the coarse images the arm is looked for on are about th
 RADIUS_PRIOR_SIGMA_M = 0.004  # how far the configured radius may be off before the images correct it
 MIN_TUBE_INLIERS = 0.8  # share of edges within a pixel of the fitted tube
 MAX_TUBE_RMS_PX = 0.6  # RMS of those edges
+MAX_END_BRIDGE_WIDTHS = 1.0  # an end hidden over more than this many arm widths is a guess, not a measurement
+# The fit's covariance overstates the error of a well-seen arm (typically 3-15 mm at the tip, where
+# the error is 1-5 mm) but grows to 40-110 mm where an occluder hides the tip: only that is refused.
+MAX_POINT_STD_M = 0.04
 # Starting the fit from the previous frame's tube saves the disparity profile but measured worse
 # (2.8 against 2.2 mm on a late-ramp stretch of the twin): the profile starts it better.
 WARM_START_TUBE = False
@@ -609,7 +613,15 @@ class CenterlineEstimator:
         if bridged > cfg.max_bridge_widths * 2.0 * radius:
             raise _NoArmError(f"{bridged * 1e3:.0f} mm of the arm bridged without its edges in both images "
                               f"(more than {cfg.max_bridge_widths:g} arm widths: occluded or out of view)")
+        # Between two measured stretches the fit interpolates; past the last one it extrapolates.
+        for name, run in (("base", _end_run(~measured, points)), ("tip", _end_run(~measured[::-1], points[::-1]))):
+            if run > MAX_END_BRIDGE_WIDTHS * 2.0 * radius:
+                raise _NoArmError(f"the {name} is hidden: its last {run * 1e3:.0f} mm have no edges in both images")
         std = fit.point_std_m(at)
+        if np.max(std) > MAX_POINT_STD_M:
+            worst = int(np.argmax(std))
+            raise _NoArmError(f"the images barely constrain the arm near point {worst} of {len(at)}: "
+                              f"{std[worst] * 1e3:.0f} mm standard deviation")
         self._last_fit = fit
         source = (f"measured over {self._radius_frames} frames" if self._radius_frames else "configured")
         self._tube_extras = (measured, std, radius, source)
@@ -753,6 +765,14 @@ def _measured(at: np.ndarray, edge_u: np.ndarray, edge_side: np.ndarray, reach_u
         nearest = np.minimum(np.abs(u[i - 1] - at), np.abs(u[i] - at))
         out &= nearest <= reach_u
     return out
+
+
+def _end_run(flags: np.ndarray, points: np.ndarray) -> float:
+    """3D length of the flagged stretch that starts at the first point (0 if the first is not flagged)."""
+    if len(flags) == 0 or not flags[0]:
+        return 0.0
+    stop = int(np.argmin(flags)) if not flags.all() else len(flags) - 1
+    return float(np.linalg.norm(np.diff(points[:stop + 1], axis=0), axis=1).sum())
 
 
 def _longest_run(flags: np.ndarray, points: np.ndarray) -> float:
