@@ -142,6 +142,9 @@ def _edges(image, points, normals, half, ok):
             if edge != edge:
                 continue
             # Pass 2, for blur (a fast pan, defocus): how wide is the step? Read the levels beyond it.
+            # (The area under the profile across the step is phase-proof on a synthetic step but
+            # measured worse on the tube, whose shading changes towards its rim: 0.84 -> 1.57 mm.)
+            gap = SEARCH_PX
             a = _crossing(ts, prof, total, inside, outside, 0.2, edge, SEARCH_PX + MAX_BLUR_PX)
             b = _crossing(ts, prof, total, inside, outside, 0.8, edge, SEARCH_PX + MAX_BLUR_PX)
             if a == a and b == b:
@@ -151,10 +154,10 @@ def _edges(image, points, normals, half, ok):
                     diff2 = inside2 - outside2
                     n2 = diff2[0] * diff2[0] + diff2[1] * diff2[1] + diff2[2] * diff2[2]
                     if n2 >= MIN_CONTRAST * MIN_CONTRAST:
-                        refined = _crossing(ts, prof, total, inside2, outside2, 0.5, edge, gap)
-                        if refined == refined:
-                            edge = refined
-                            norm2 = n2
+                        inside, outside, norm2 = inside2, outside2, n2
+            refined = _crossing(ts, prof, total, inside, outside, 0.5, edge, gap)
+            if refined == refined:
+                edge = refined
             if abs(edge - guess) <= SEARCH_PX + 1.0:
                 out[i, side] = edge
                 contrast[i, side] = np.sqrt(norm2)
