@@ -23,6 +23,19 @@ _HANDLERS = {
 
 # bench.recording's EXIT_* codes (not imported here: `softarm --help` stays fast)
 _RUN_EXIT_CODES = "exit status: 0 done; 1 failed while writing; 2 RUN is not a readable run folder"
+# The newest run, which report and replay take when RUN is left out (bench.recording.LATEST under runs/).
+_LATEST_RUN = "runs/latest"
+
+
+def version() -> str:
+    """The installed softarm-twin's version ("unknown" when it runs from a folder without being installed)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as installed
+
+    try:
+        return installed("softarm-twin")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -31,6 +44,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Stereo centerline estimation of a three-section soft arm, on its digital twin or the rig.",
         epilog="Example: softarm run --frames 60   (a quick run of the paper's bending experiment on the twin)",
     )
+    parser.add_argument("--version", action="version", version=f"softarm {version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
     def add(name: str, help_: str, example: str) -> argparse.ArgumentParser:
@@ -44,7 +58,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--mode", choices=("default", "paper"), help="estimator mode (overrides the config)")
     run.add_argument("--compare", action="store_true", help="also run the paper mode on every frame and compare")
     run.add_argument("--frames", type=int, help="spread N frames over the whole experiment (quick, coarse run)")
-    run.add_argument("--out", help="run folder; default runs/<timestamp>")
+    run.add_argument("--out", help="run folder; default runs/<timestamp> under the working directory (runs/latest "
+                     "points to it)")
     run.add_argument("--no-report", action="store_true", help="skip the plots and video at the end")
     run.add_argument("--yes", action="store_true",
                      help="go ahead with a run expected to write more than 2 GB (the expected size is printed first)")
@@ -52,23 +67,27 @@ def build_parser() -> argparse.ArgumentParser:
     report = add("report", "Write plots, overlay video and a markdown summary for a run folder.",
                  "softarm report runs/2026-11-22_101500")
     report.epilog = _RUN_EXIT_CODES
-    report.add_argument("run_dir", metavar="RUN")
+    report.add_argument("run_dir", metavar="RUN", nargs="?", default=_LATEST_RUN,
+                        help=f"the run folder; default {_LATEST_RUN} (the newest run under the working directory)")
 
     replay = add("replay", "Re-run an estimator configuration on a recorded run and score it again.",
                  "softarm replay runs/2026-11-22_101500 --mode paper")
     replay.epilog = _RUN_EXIT_CODES
-    replay.add_argument("run_dir", metavar="RUN")
+    replay.add_argument("run_dir", metavar="RUN", nargs="?", default=_LATEST_RUN,
+                        help=f"the run folder; default {_LATEST_RUN} (the newest run under the working directory)")
     replay.add_argument("--mode", choices=("default", "paper"))
     replay.add_argument("--centerline", choices=("som", "competitive", "kmeans++", "thinning", "skeleton"),
                         help="2D centerline stage to use")
-    replay.add_argument("--out", help="output folder; default RUN/replay_<timestamp>")
+    replay.add_argument("--out", help="output folder; default runs/replay_<timestamp> under the working directory "
+                        "(runs/latest then points to it)")
 
     study = add("study", "Regenerate the paper's SOM parameter study or the centerline comparison.",
                 "softarm study som --out runs/som_study")
     study.add_argument("which", choices=("som", "compare"))
     study.add_argument("--config", help="bench config (TOML); default models/bench.toml")
     study.add_argument("--frames", type=int, help="number of twin frames to study")
-    study.add_argument("--out", help="output folder; default runs/study_<which>_<timestamp>")
+    study.add_argument("--out", help="output folder; default runs/study_<which>_<timestamp> under the working "
+                       "directory")
 
     calibrate = add("calibrate", "Calibrate the stereo camera from checkerboard views and write a calibration file.",
                     "softarm calibrate --out calib.toml")

@@ -18,9 +18,7 @@ section, write its dataclass and add one field to ``BenchConfig``::
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import math
-import tomllib
 import types
 import typing
 from collections.abc import Mapping
@@ -29,15 +27,20 @@ from pathlib import Path
 from typing import Any, Literal
 
 from estimator import EstimatorConfig
+from estimator.config_file import ConfigFileError, TableReader, describe, read_toml
+from hardware.interfaces import DEFAULT_CLAMP_TOLERANCE, MAX_CLAMP_TOLERANCE
 from hardware.protocol import DEFAULT_BAUD
 from hardware.zed import ZED_FPS, resolution_name
+from models import models_dir
 
-REPO = Path(__file__).resolve().parents[1]
-MODELS = REPO / "models"
+# The shipped configs are package data (``models``), found wherever softarm is installed or run from.
+MODELS = models_dir()
 DEFAULT_CONFIG = MODELS / "bench.toml"
-# Relative paths of the dataclass defaults (``twin.toml``, ``../runs``) are those of
-# models/bench.toml, so a default resolves against models/ whichever file left the key out.
+# Relative paths of the dataclass defaults (``twin.toml``) are those of models/bench.toml, so a
+# default resolves against models/ whichever file left the key out.
 DEFAULTS_DIR = MODELS
+# Where runs go when neither --out nor [recording] root says: runs/ under the working directory.
+RUNS_DIR = "runs"
 BACKENDS = ("sim", "rig")
 CALIBRATION_SUFFIXES = (".conf", ".toml")
 EXPERIMENT_KINDS = ("ramp", "step", "sweep", "random")
@@ -61,8 +64,9 @@ MAX_BAUD = 20_000_000
 MAX_BOARD_CHANNEL = 255
 
 
-class ConfigError(ValueError):
-    """A config file is missing, not TOML, or has an unknown key or a bad value; names file and key."""
+# A config file is missing, not TOML, or has an unknown key or a bad value; the message names file and key.
+# The bench's files are read with the project's one reader, so this is the one config error of every file.
+ConfigError = ConfigFileError
 
 
 # --- sections -----------------------------------------------------------------------------
@@ -127,7 +131,10 @@ class ValvesConfig:
             arm's seven valves s1_a .. s3 on channels 0 .. 6, as in models/bench.toml).
         max_pressure_bar: host-side limit on every channel (the board enforces its own too).
         baud: serial rate.
-        clamp: clamp out-of-range set-points with a warning instead of raising.
+        clamp: clamp set-points slightly out of range (within ``clamp_tolerance``) with a warning
+            instead of raising; further out they are refused either way.
+        clamp_tolerance: how far outside [0, max_pressure_bar] ``clamp`` reaches, a fraction of
+            max_pressure_bar (0.1: 10 %; at most ``hardware.interfaces.MAX_CLAMP_TOLERANCE``).
         reply_timeout_s: how long to wait for each reply before a retry (two retries, then the
             link is lost); a board answers in well under a millisecond, so the default leaves
             room for a busy host, not for a slow board.
@@ -138,6 +145,7 @@ class ValvesConfig:
     max_pressure_bar: float = 2.5
     baud: int = DEFAULT_BAUD
     clamp: bool = False
+    clamp_tolerance: float = DEFAULT_CLAMP_TOLERANCE
     reply_timeout_s: float = 0.05
 
     def __post_init__(self) -> None:
@@ -148,6 +156,9 @@ class ValvesConfig:
                              f"got {self.max_pressure_bar!r}")
         if not 0 < self.baud <= MAX_BAUD:
             raise ValueError(f"baud: expected a rate in 1 .. {MAX_BAUD}, got {self.baud}")
+        if not (math.isfinite(self.clamp_tolerance) and 0 <= self.clamp_tolerance <= MAX_CLAMP_TOLERANCE):
+            raise ValueError(f"clamp_tolerance: expected a fraction of max_pressure_bar in "
+                             f"[0, {MAX_CLAMP_TOLERANCE:g}], got {self.clamp_tolerance!r}")
         if not (math.isfinite(self.reply_timeout_s) and 0 < self.reply_timeout_s <= 1.0):
             raise ValueError(f"reply_timeout_s: expected 0 < seconds <= 1 (the board's watchdog vents after "
                              f"0.25 s of silence), got {self.reply_timeout_s!r}")
@@ -324,7 +335,7 @@ class RecordingConfig:
 
     Attributes:
         root: where ``softarm run`` creates its time-stamped folder (``--out`` overrides; left
-            out: ``runs/`` of the repository).
+            out, None: ``runs/`` under the working directory, see ``runs_root``).
         lossless_frames: raw stereo frames as PNG (lossless: the run can be replayed exactly);
             false writes JPEG (a fraction of the size; enough for the report, not for replay).
         png_compression: zlib level 0-9 of the PNGs (1: fast; the sensor noise barely compresses).
@@ -335,12 +346,16 @@ class RecordingConfig:
             report can compute the paper's Q' metric again.
     """
 
-    root: Path = Path("../runs")
+    root: Path | None = None
     lossless_frames: bool = True
     png_compression: int = 1
     png_strategy: Literal["huffman", "rle", "default"] = "huffman"
     jpeg_quality: int = 95
     depth: bool = True
+
+    def runs_root(self) -> Path:
+        """The folder new runs go in: ``root``, or ``runs/`` under the working directory (resolved now)."""
+        return Path(self.root) if self.root is not None else Path.cwd() / RUNS_DIR
 
     def __post_init__(self) -> None:
         if not 0 <= self.png_compression <= 9:
@@ -416,31 +431,30 @@ class BenchConfig:
 
 # --- loading ------------------------------------------------------------------------------
 
+# A config file may name another it changes: ``base = "bench.toml"``. The base's keys come first, this
+# file's replace them (table by table); the base is a config of its own, checked on its own.
+BASE_KEY = "base"
+MAX_BASE_DEPTH = 8
+
 
 def load_bench_config(path: str | Path | None = None, *, backend: str | None = None) -> BenchConfig:
     """Read a bench config.
 
-    Relative paths written in the file resolve against the file's folder; keys and sections the
-    file leaves out take the defaults of ``models/bench.toml``, whose paths resolve against
-    ``models/`` (a file elsewhere that omits ``[sim]`` still gets ``models/twin.toml``).
+    Relative paths written in a file resolve against that file's folder; keys and sections the
+    file (and its ``base``) leaves out take the defaults of ``models/bench.toml``, whose paths
+    resolve against ``models/`` (a file elsewhere that omits ``[sim]`` still gets the shipped
+    ``twin.toml``); ``[recording] root`` left out is ``runs/`` under the working directory.
 
     Args:
         path: the TOML file; None for ``models/bench.toml``.
         backend: override the file's ``backend`` ("sim" or "rig").
 
     Raises:
-        ConfigError: the file is missing or not TOML, or a key is unknown, missing, of the wrong
-            type or has a bad value; the message names the file and the key.
+        ConfigError: the file (or its base) is missing or not TOML, or a key is unknown, missing,
+            of the wrong type or has a bad value; the message names the file and the key.
     """
     path = Path(path) if path is not None else DEFAULT_CONFIG
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError as e:
-        raise ConfigError(f"{path}: config file not found") from e
-    except (OSError, UnicodeDecodeError) as e:
-        raise ConfigError(f"{path}: cannot read the config file ({e})") from e
-    except tomllib.TOMLDecodeError as e:
-        raise ConfigError(f"{path}: not valid TOML ({e})") from e
+    data = _read_config(path, ())
     config = build_section(BenchConfig, data, path, context={"path": path.resolve()})
     if backend is not None:
         try:
@@ -448,6 +462,60 @@ def load_bench_config(path: str | Path | None = None, *, backend: str | None = N
         except ValueError as e:
             raise ConfigError(f"{path} with the backend override: {e}") from e
     return config
+
+
+def _read_config(path: Path, chain: tuple[Path, ...]) -> dict:
+    """The TOML of ``path`` merged over its base's (recursively), the base's relative paths made absolute."""
+    data = read_toml(path, "config", ConfigError)
+    if BASE_KEY not in data:
+        return data
+    top = TableReader(path, data, error=ConfigError)
+    base = top.take(BASE_KEY, _base_file(path.parent))
+    data = {k: v for k, v in data.items() if k != BASE_KEY}
+    if base.resolve() in chain or base.resolve() == path.resolve() or len(chain) >= MAX_BASE_DEPTH:
+        raise top.error(BASE_KEY, f"{base} leads back to this file (a cycle: "
+                                  f"{' -> '.join(str(p) for p in (*chain, path.resolve(), base.resolve()))})")
+    if not base.is_file():
+        raise top.error(BASE_KEY, f"{base}: config file not found")
+    chain = (*chain, path.resolve())
+    base_data = _read_config(base, chain)
+    build_section(BenchConfig, base_data, base, context={"path": base.resolve()})  # the base's errors name it
+    return _merged(_absolute_paths(BenchConfig, base_data, base.parent), data)
+
+
+def _base_file(folder: Path):
+    def convert(value: Any) -> Path:
+        if not isinstance(value, str) or not value.strip():
+            raise TypeError(f"expected the config file this one changes, got {describe(value)}")
+        return _resolve(Path(value), folder)
+
+    return convert
+
+
+def _merged(base: dict, changes: dict) -> dict:
+    """``base`` with ``changes`` applied: tables merge key by key, every other value is replaced."""
+    out = dict(base)
+    for key, value in changes.items():
+        out[key] = _merged(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
+    return out
+
+
+def _absolute_paths(cls: Any, table: dict, folder: Path) -> dict:
+    """``table`` (of the dataclass ``cls``) with its relative path strings made absolute against ``folder``,
+    so a base's paths keep meaning what they meant in the base once merged into another file."""
+    hints = typing.get_type_hints(cls)
+    out = dict(table)
+    for f in dataclasses.fields(cls):
+        if f.name not in out:
+            continue
+        options = [a for a in typing.get_args(hints[f.name]) if a is not type(None)] or [hints[f.name]]
+        value = out[f.name]
+        nested = next((o for o in options if dataclasses.is_dataclass(o)), None)
+        if nested is not None and isinstance(value, dict):
+            out[f.name] = _absolute_paths(nested, value, folder)
+        elif Path in options and isinstance(value, str) and value:
+            out[f.name] = str(_resolve(Path(value), folder))
+    return out
 
 
 _T = typing.TypeVar("_T")
@@ -463,7 +531,9 @@ def build_section(cls: type[_T], table: Any, path: Path, section: str = "", *,
     ``Literal[...]``, unions such as ``int | Path`` or ``X | None``, ``tuple[X, ...]``,
     ``Mapping[str, X]`` and nested dataclasses (sub-tables, built recursively; a missing
     sub-table takes the field's default, or is built from an empty table when there is none). Fields with
-    ``metadata={"from_file": False}`` are not keys; they come from ``context``.
+    ``metadata={"from_file": False}`` are not keys; they come from ``context``. The table is read
+    with the project's one reader (``estimator.config_file.TableReader``), so messages name the
+    file and the key as every config file's do.
 
     Args:
         cls: a dataclass whose ``__post_init__`` raises ``ValueError("<key>: <problem>")``.
@@ -478,57 +548,37 @@ def build_section(cls: type[_T], table: Any, path: Path, section: str = "", *,
         ConfigError: an unknown key, a missing required key, a value of the wrong type, or a
             value ``__post_init__`` rejects; the message names the file and the key.
     """
-    where = _Where(path, section)
-    if not isinstance(table, dict):
-        raise where.error(None, f"expected a table, got {_describe(table)}")
+    reader = TableReader(path, table, section or None, error=ConfigError, key_word="")
     hints = typing.get_type_hints(cls)
     keys = {f.name: f for f in dataclasses.fields(cls) if f.init and f.metadata.get("from_file", True)}
-    for key in table:
-        if key not in keys:
-            close = difflib.get_close_matches(key, list(keys), n=1)
-            hint = f"; did you mean {close[0]!r}?" if close else ""
-            raise where.error(None, f"unknown key {where.name(key)}{hint} (known keys: {', '.join(keys) or 'none'})")
+    reader.only(keys)
     values = dict(context or {})
     for name, f in keys.items():
         hint = hints[name]
-        if name in table:
-            values[name] = _convert(table[name], hint, where, name, defaults_dir)
+        if reader.has(name):
+            values[name] = reader.take(name, lambda value, hint=hint, name=name: _convert(value, hint, reader, name,
+                                                                                          defaults_dir))
         elif f.default is not dataclasses.MISSING:
             values[name] = _resolve_default(f.default, defaults_dir)
         elif f.default_factory is not dataclasses.MISSING:
             values[name] = _resolve_default(f.default_factory(), defaults_dir)
         elif dataclasses.is_dataclass(hint):
             # names its missing keys
-            values[name] = build_section(hint, {}, path, where.child(name), defaults_dir=defaults_dir)
+            values[name] = build_section(hint, {}, path, reader.child(name), defaults_dir=defaults_dir)
         else:
-            raise where.error(None, f"missing key {where.name(name)}")
+            raise reader.missing(name)
     try:
         return cls(**values)
     except ValueError as e:
-        raise where.error(None, _with_section(str(e), where)) from e
+        raise reader.fail(_with_section(str(e), reader.section)) from e
 
 
-@dataclass(frozen=True)
-class _Where:
-    path: Path
-    section: str
-
-    def name(self, key: str) -> str:
-        return f"[{self.section}] {key}" if self.section else key
-
-    def child(self, key: str) -> str:
-        return f"{self.section}.{key}" if self.section else key
-
-    def error(self, key: str | None, message: str) -> ConfigError:
-        return ConfigError(f"{self.path}: {self.name(key) + ': ' if key else ''}{message}")
-
-
-def _with_section(message: str, where: _Where) -> str:
+def _with_section(message: str, section: str | None) -> str:
     """Prefix a ``__post_init__`` message's leading key with the section, e.g. "[rig.camera] fps: ..."."""
-    return f"[{where.section}] {message}" if where.section and not message.startswith("[") else message
+    return f"[{section}] {message}" if section and not message.startswith("[") else message
 
 
-def _convert(value: Any, hint: Any, where: _Where, key: str, defaults_dir: Path) -> Any:
+def _convert(value: Any, hint: Any, reader: TableReader, key: str, defaults_dir: Path) -> Any:
     origin, args = typing.get_origin(hint), typing.get_args(hint)
     if origin in (typing.Union, types.UnionType):
         if value is None and type(None) in args:
@@ -536,24 +586,24 @@ def _convert(value: Any, hint: Any, where: _Where, key: str, defaults_dir: Path)
         options = [a for a in args if a is not type(None)]
         for option in options:  # the first option of the value's TOML type; its own errors stand
             if _fits(value, option):
-                return _convert(value, option, where, key, defaults_dir)
-        raise where.error(key, f"expected {' or '.join(map(_expected, options))}, got {_describe(value)}")
+                return _convert(value, option, reader, key, defaults_dir)
+        raise reader.error(key, f"expected {' or '.join(map(_expected, options))}, got {describe(value)}")
     if not _fits(value, hint) or (hint is Path and not value):
-        raise where.error(key, f"expected {_expected(hint)}, got {_describe(value)}")
+        raise reader.error(key, f"expected {_expected(hint)}, got {describe(value)}")
     if dataclasses.is_dataclass(hint):
-        return build_section(hint, value, where.path, where.child(key), defaults_dir=defaults_dir)
+        return build_section(hint, value, reader.path, reader.child(key), defaults_dir=defaults_dir)
     if origin is tuple:
         item = args[0] if args else Any
-        return tuple(_convert(v, item, where, f"{key}[{i}]", defaults_dir) for i, v in enumerate(value))
+        return tuple(_convert(v, item, reader, f"{key}[{i}]", defaults_dir) for i, v in enumerate(value))
     if _is_mapping(hint):
         item = args[1] if len(args) == 2 else Any
-        return {str(k): _convert(v, item, where, f"{key}.{k}", defaults_dir) for k, v in value.items()}
+        return {str(k): _convert(v, item, reader, f"{key}.{k}", defaults_dir) for k, v in value.items()}
     if hint is float:
         if not math.isfinite(value):  # TOML writes inf and nan; no key of the bench takes them
-            raise where.error(key, f"expected a finite number, got {value!r}")
+            raise reader.error(key, f"expected a finite number, got {value!r}")
         return float(value)
     if hint is Path:
-        return _resolve(Path(value), where.path.resolve().parent)
+        return _resolve(Path(value), reader.path.resolve().parent)
     return value
 
 
@@ -609,9 +659,3 @@ def _resolve_default(value: Any, defaults_dir: Path) -> Any:
 def _resolve(value: Path, folder: Path) -> Path:
     value = value.expanduser()
     return value if value.is_absolute() else (Path(folder).resolve() / value)
-
-
-def _describe(value: Any) -> str:
-    kinds = {bool: "a boolean", int: "an integer", float: "a number", str: "a string", list: "an array",
-             dict: "a table"}
-    return f"{value!r} ({kinds.get(type(value), type(value).__name__)})"

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bench.config import BenchConfig, CameraConfig, ConfigError, RigConfig, SimConfig
+from bench.config import BenchConfig, CameraConfig, ConfigError, RigConfig, SimConfig, ValvesConfig
 from estimator import CalibrationFileError, StereoCalibration
 from hardware.errors import DeviceError
 from hardware.interfaces import StereoCamera, ValveBank
@@ -147,17 +147,22 @@ def rig_camera(cam: CameraConfig, config_path: Path, calibration: StereoCalibrat
     return camera
 
 
+def serial_valves(valves: ValvesConfig) -> ValveBank:
+    """The valve board of ``[rig.valves]`` (``hardware.valves.SerialValveBank``), not yet connected."""
+    from hardware.valves import SerialValveBank
+
+    return SerialValveBank(valves.port, dict(valves.channels), valves.max_pressure_bar, baud=valves.baud,
+                           clamp=valves.clamp, clamp_tolerance=valves.clamp_tolerance,
+                           reply_timeout_s=valves.reply_timeout_s)
+
+
 def _make_rig(rig: RigConfig, config_path: Path) -> Devices:
     if rig.valves is None:
         raise ConfigError(f"{config_path} [rig.valves]: the rig backend drives the valve board; add a [rig.valves] "
                           "section with its port (only `softarm calibrate` works without one)")
-    from hardware.valves import SerialValveBank
-
     cam = rig.camera
     calibration = rig_calibration(cam, config_path)
-    valves = SerialValveBank(rig.valves.port, dict(rig.valves.channels), rig.valves.max_pressure_bar,
-                             baud=rig.valves.baud, clamp=rig.valves.clamp,
-                             reply_timeout_s=rig.valves.reply_timeout_s)
+    valves = serial_valves(rig.valves)
     camera = rig_camera(cam, config_path, calibration)
     try:
         valves.connect()

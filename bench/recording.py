@@ -135,6 +135,48 @@ def write_json(path: Path, data: Any) -> None:
     os.replace(tmp, path)
 
 
+# ``runs/latest`` names the newest run: a symbolic link to its folder, or (where links cannot be made) a
+# text file holding the folder's name; ``softarm report`` and ``softarm replay`` read it by default.
+LATEST = "latest"
+
+
+def point_latest(folder: Path) -> None:
+    """Make ``latest`` beside ``folder`` name it (a relative symlink, replaced atomically; a text file where
+    symbolic links are refused). Never raises: a run does not fail over its bookmark."""
+    folder = Path(folder)
+    link = folder.parent / LATEST
+    if link.exists() and link.is_dir() and not link.is_symlink():
+        return  # a real folder of that name is somebody's; leave it
+    tmp = folder.parent / f".{LATEST}.{os.getpid()}.tmp"
+    try:
+        tmp.unlink(missing_ok=True)
+        os.symlink(folder.name, tmp, target_is_directory=True)
+        os.replace(tmp, link)
+        return
+    except OSError:
+        tmp.unlink(missing_ok=True)
+    try:
+        tmp.write_text(folder.name + "\n", encoding="utf-8")
+        os.replace(tmp, link)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+
+
+def resolve_run_folder(path: str | Path) -> Path:
+    """``path``, or the folder a ``latest`` text file names (where it could not be a symbolic link)."""
+    path = Path(path)
+    if path.name == LATEST and path.is_symlink():
+        return path.parent / os.readlink(path)
+    if path.name == LATEST and path.is_file():
+        try:
+            name = path.read_text(encoding="utf-8").strip()
+        except (OSError, UnicodeDecodeError):
+            return path
+        if name and "/" not in name and (path.parent / name).is_dir():
+            return path.parent / name
+    return path
+
+
 def new_run_folder(root: Path, stamp: str | None = None) -> Path:
     """A fresh ``root/<YYYY-mm-dd_HHMMSS>`` (with ``_2``, ``_3`` ... when taken)."""
     stamp = stamp or time.strftime("%Y-%m-%d_%H%M%S")
@@ -421,7 +463,7 @@ def load_run(path: str | Path) -> Run:
         RunFolderError: not a run folder (no frames.jsonl or config.json), or a config.json that is
             not a JSON object.
     """
-    path = Path(path)
+    path = resolve_run_folder(path)
     frames_path = path / FRAMES_FILE
     if not frames_path.is_file():
         raise RunFolderError(f"{path}: not a run folder (no {FRAMES_FILE})")

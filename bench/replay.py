@@ -29,6 +29,8 @@ from bench.recording import (
     RunFolderError,
     RunWriter,
     load_run,
+    new_run_folder,
+    point_latest,
     summarize_run,
 )
 from bench.scoring import DEPTH_UNIT_M, summary_table
@@ -50,12 +52,16 @@ def replay_command(args) -> int:
     except (RunFolderError, ValueError) as e:
         print(f"softarm replay: {e}", file=sys.stderr)
         return EXIT_NOT_A_RUN
-    out = Path(args.out) if getattr(args, "out", None) else run.path / f"replay_{time.strftime('%Y-%m-%d_%H%M%S')}"
+    given = getattr(args, "out", None)
+    out = Path(given) if given else new_run_folder(RecordingConfig().runs_root(),
+                                                   f"replay_{time.strftime('%Y-%m-%d_%H%M%S')}")
     try:
         summary = replay(run, config, out, progress=True)
     except (RunFolderError, OSError) as e:
         print(f"softarm replay: {e}", file=sys.stderr)
         return EXIT_FAILED
+    if not given:
+        point_latest(out)
     label = f"replay ({config.mode}, {config.centerline})"
     print(f"replayed {summary['frames']} frames of {run.path} into {out}")
     print("recorded:")

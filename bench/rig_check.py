@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from bench.config import ConfigError, load_bench_config
-from bench.factory import nominal_calibration, rig_calibration, rig_camera
+from bench.factory import nominal_calibration, rig_calibration, rig_camera, serial_valves
 from estimator import CalibrationFileError, StereoCalibration
 from hardware.errors import DeviceError
 
@@ -98,12 +98,8 @@ def _check_valves(config) -> tuple[list[str], BaseException | None]:
     valves_config = config.rig.valves
     if valves_config is None:
         return [], ConfigError(f"{config.path}: no [rig.valves] section (the valve board's port and channels)")
-    from hardware.valves import SerialValveBank
-
     try:
-        valves = SerialValveBank(valves_config.port, dict(valves_config.channels), valves_config.max_pressure_bar,
-                                 baud=valves_config.baud, clamp=valves_config.clamp,
-                                 reply_timeout_s=valves_config.reply_timeout_s)
+        valves = serial_valves(valves_config)
         with valves:  # connects (and vents); closing vents again
             return describe_valves(valves), None
     except _ERRORS as e:
@@ -121,6 +117,7 @@ def describe_valves(valves) -> list[str]:
         + " ".join(f"{name}(ch{ch})={status.setpoints_mbar[ch]}" for name, ch in valves.board_channels.items())
         + " mbar",
         f"{_INDENT}host limit {valves.max_pressure_bar:g} bar",
+        f"{_INDENT}unreadable frames (line noise) since the board started: {status.unreadable_frames}",
     ]
 
 

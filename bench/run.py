@@ -43,7 +43,15 @@ import numpy as np
 
 from bench.config import BenchConfig, ConfigError, load_bench_config
 from bench.experiments import Schedule, make_schedule
-from bench.recording import RunWriter, frame_bytes, human_bytes, jsonable, new_run_folder, summarize_run
+from bench.recording import (
+    RunWriter,
+    frame_bytes,
+    human_bytes,
+    jsonable,
+    new_run_folder,
+    point_latest,
+    summarize_run,
+)
 from bench.scoring import (
     DEPTH_UNIT_M,
     dequantize_depth,
@@ -299,10 +307,12 @@ def run_experiment(config: BenchConfig, options: RunOptions) -> RunOutcome:
             _check_schedule(schedule, devices.valves)
             _check_disk(config, options, schedule, devices.camera.calibration.image_size)
             depth_source = _rig_depth_source(config) if config.backend == "rig" else None
-            folder = options.out if options.out is not None else new_run_folder(config.recording.root)
+            folder = options.out if options.out is not None else new_run_folder(config.recording.runs_root())
             # config.json and the calibration before frames.jsonl: a run killed at any point loads
             writer = RunWriter(folder, config.recording, source=config.path, calibration=devices.camera.calibration,
                                config=_resolved_config(config, options, schedule, est_configs, devices))
+            if options.out is None:
+                point_latest(folder)
         except BaseException as e:
             try:
                 devices.close()
@@ -362,7 +372,7 @@ def _check_disk(config: BenchConfig, options: RunOptions, schedule: Schedule, im
     per_frame = frame_bytes(config.recording, tuple(image_size), compare=options.compare,
                             depth=config.backend == "sim" and config.recording.depth)
     total = per_frame * schedule.frames
-    target = options.out if options.out is not None else Path(config.recording.root)
+    target = options.out if options.out is not None else config.recording.runs_root()
     free = _free_bytes(Path(target))
     room = f"; {human_bytes(free)} free there" if free is not None else ""
     print(f"softarm run: expected disk use about {human_bytes(total)} ({schedule.frames} frames x "

@@ -98,7 +98,7 @@ def study_command(args) -> int:
               file=sys.stderr)
         return 2
     which = args.which
-    out = Path(args.out) if getattr(args, "out", None) else new_run_folder(config.recording.root,
+    out = Path(args.out) if getattr(args, "out", None) else new_run_folder(config.recording.runs_root(),
                                                                             f"study_{which}_{time.strftime('%Y-%m-%d_%H%M%S')}")
     print(f"softarm study {which}: rendering {n} twin frames along the experiment ...", flush=True)
     try:

@@ -13,16 +13,13 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from twin.params import ArmParams  # noqa: E402
-from twin.physics import ArmSimulation  # noqa: E402
+from twin.params import ArmParams
+from twin.physics import ArmSimulation
 
 RAMP = ("s1_a", "s2_a", "s3")
 

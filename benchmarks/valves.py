@@ -10,19 +10,13 @@ figures, since at 115200 baud it alone exceeds the target (use USB CDC or a fast
 from __future__ import annotations
 
 import argparse
-import sys
 import time
-from pathlib import Path
 
-# Run as a script, this folder comes first on sys.path, and benchmarks/estimator.py would shadow
-# the estimator package that hardware imports: put the repository first.
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from hardware.emulator import BoardEmulator  # noqa: E402
-from hardware.protocol import BoardStatus, encode  # noqa: E402
-from hardware.valves import SerialValveBank  # noqa: E402
+from hardware.emulator import BoardEmulator
+from hardware.protocol import BoardStatus, encode
+from hardware.valves import SerialValveBank
 
 CHANNELS = ("s1_a", "s1_b", "s1_c", "s1_d", "s2_a", "s2_b", "s3")
 MEDIAN_TARGET_MS = 5.0

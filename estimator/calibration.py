@@ -13,13 +13,14 @@ otherwise comes out as a confident wrong answer (a flipped T puts the arm behind
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 
 import cv2
 import numpy as np
+
+from estimator.config_file import ConfigFileError, TableReader, read_toml
 
 _SIDES = ("left", "right")
 _DIST_LENGTHS = (0, 1, 2, 3, 4, 5, 8, 12, 14)
@@ -55,7 +56,7 @@ RATIONAL_K_LIMIT = 100.0
 _RADIAL = (0, 1, 4, 5, 6, 7)  # indices of k1..k6 in dist
 
 
-class CalibrationFileError(ValueError):
+class CalibrationFileError(ConfigFileError):
     """A calibration file is missing, unreadable or has a bad key; the message names both."""
 
 
@@ -326,27 +327,32 @@ class StereoCalibration:
                 (see the class); the message names the file, the key and the expected range.
         """
         path = Path(path)
-        try:
-            data = tomllib.loads(path.read_text())
-        except FileNotFoundError as e:
-            raise CalibrationFileError(f"{path}: calibration file not found") from e
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-            raise CalibrationFileError(f"{path}: not a TOML calibration file ({e})") from e
-
+        top = TableReader(path, read_toml(path, "calibration", CalibrationFileError), error=CalibrationFileError)
+        tables = {None: top}
         values = {}
         for name, (section, key) in _FILE_KEYS.items():
-            table = data if section is None else data.get(section)
-            if not isinstance(table, dict) or key not in table:
-                raise CalibrationFileError(f"{path}: missing key {_where(section, key)}")
-            try:
-                values[name] = tuple(table[key]) if name == "image_size" else np.asarray(table[key], float)
-            except (TypeError, ValueError) as e:
-                raise CalibrationFileError(f"{path}: key {_where(section, key)} is not a numeric array ({e})") from e
+            if section not in tables:  # a missing table is named by the key it should hold
+                found = top.sub(section, required=False)
+                tables[section] = found or TableReader(path, {}, section, error=CalibrationFileError)
+            values[name] = tables[section].take(key, _tuple if name == "image_size" else _array)
         try:
             return cls(**values)
         except CalibrationValueError as e:
             section, key = _FILE_KEYS[e.argument]
-            raise CalibrationFileError(f"{path}: key {_where(section, key)}: {e.detail}") from e
+            raise tables[section].error(key, e.detail) from e
+
+
+def _array(value) -> np.ndarray:
+    try:
+        return np.asarray(value, float)
+    except (TypeError, ValueError) as e:
+        raise TypeError(f"expected a numeric array ({e})") from e
+
+
+def _tuple(value) -> tuple:
+    if not isinstance(value, list):
+        raise TypeError(f"expected a numeric array [width, height], got {value!r}")
+    return tuple(value)
 
 
 # Constructor field -> (TOML section, key) of the calibration file.

@@ -1,9 +1,11 @@
-"""Every benchmark script starts: its imports resolve when run as a script from any folder.
+"""Every benchmark script starts from any folder, against the installed packages, shadowing none of them.
 
-(Run as a script, benchmarks/ comes first on sys.path, where estimator.py and twin.py would
-shadow the packages of the same names unless the script puts the repository first.)
+Run as a script, a file's own folder comes first on sys.path: a script named like a package
+(``benchmarks/estimator.py``) would be imported in its place. The scripts are named apart from
+the packages instead of patching sys.path.
 """
 
+import ast
 import subprocess
 import sys
 from pathlib import Path
@@ -12,6 +14,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 SCRIPTS = sorted((REPO / "benchmarks").glob("*.py"))
+PACKAGES = {"estimator", "hardware", "twin", "bench", "models", "tests", "benchmarks"}
 
 
 @pytest.mark.parametrize("script", SCRIPTS, ids=[s.name for s in SCRIPTS])
@@ -20,3 +23,13 @@ def test_benchmark_script_starts(script, tmp_path):
                             timeout=120)
     assert result.returncode == 0, result.stderr
     assert "usage:" in result.stdout
+
+
+def test_no_script_shadows_a_package_or_patches_the_import_path():
+    assert len(SCRIPTS) >= 5
+    assert not {s.stem for s in SCRIPTS} & PACKAGES
+    for script in SCRIPTS:
+        tree = ast.parse(script.read_text())
+        calls = [node for node in ast.walk(tree) if isinstance(node, ast.Attribute) and node.attr == "path"
+                 and isinstance(node.value, ast.Name) and node.value.id == "sys"]
+        assert not calls, f"{script.name} patches sys.path"

@@ -13,20 +13,22 @@ from __future__ import annotations
 
 import math
 import re
-import tomllib
-import typing
 from dataclasses import dataclass
+from importlib.resources import files
 from pathlib import Path
 
 import numpy as np
 
-DEFAULT_PARAMS_PATH = Path(__file__).resolve().parents[1] / "models" / "arm.toml"
+from estimator.config_file import ConfigFileError, TableReader, is_number, read_toml
+
+# models/ is package data (importlib.resources finds it in a checkout and in an installed wheel alike).
+DEFAULT_PARAMS_PATH = Path(str(files("models") / "arm.toml"))
 
 PMA_KINDS = ("contractile", "extensile")
 _NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 
 
-class ParamsFileError(ValueError):
+class ParamsFileError(ConfigFileError):
     """A parameter file is missing, unreadable, or has a bad key; the message names both."""
 
 
@@ -220,103 +222,67 @@ class ArmParams:
                 the wrong type or an invalid value; the message names the file and the key.
         """
         path = Path(path) if path is not None else DEFAULT_PARAMS_PATH
-        try:
-            data = tomllib.loads(path.read_text())
-        except FileNotFoundError as e:
-            raise ParamsFileError(f"{path}: arm parameter file not found") from e
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-            raise ParamsFileError(f"{path}: not a TOML file ({e})") from e
-        reader = _Reader(path)
-        arm = reader.table(data, "arm", "")
-        top_keys = {"arm", "base_mount", "baseplate", "section"}
-        reader.no_unknown(data, top_keys, "")
-        sections_raw = data.get("section")
-        if not isinstance(sections_raw, list) or not sections_raw:
-            raise ParamsFileError(f"{path}: missing key 'section' (one [[section]] table per section, base to tip)")
-        sections = tuple(reader.section(raw, f"section[{i}]") for i, raw in enumerate(sections_raw))
-        return reader.build(cls, arm, "arm", max_pressure_bar=float, valve_time_constant_s=float,
-                            extra={"base_mount": reader.build(BaseMountParams, reader.table(data, "base_mount", ""),
-                                                              "base_mount", radius_m=float, thickness_m=float),
-                                   "baseplate": reader.plate(data, "baseplate"),
-                                   "sections": sections, "source": path})
+        # Arrays of tables ([[section]], [[section.pma]]): keys are named by their dotted path.
+        top = TableReader(path, read_toml(path, "", ParamsFileError), dotted=True, error=ParamsFileError)
+        top.only(("arm", "base_mount", "baseplate", "section"))
+        arm = top.sub("arm")
+        base_mount = _build(BaseMountParams, top.sub("base_mount"), top, radius_m=float, thickness_m=float)
+        baseplate = _build(PlateParams, top.sub("baseplate"), top, radius_m=float, thickness_m=float, mass_kg=float)
+        sections = tuple(_section(reader, top) for reader in
+                         top.tables("section", what="one [[section]] table per section, base to tip"))
+        return _build(cls, arm, top, max_pressure_bar=float, valve_time_constant_s=float,
+                      extra={"base_mount": base_mount, "baseplate": baseplate, "sections": sections, "source": path})
 
 
-class _Reader:
-    """Turns TOML tables into the dataclasses above, naming the file and key in every error."""
+def _number(value) -> float:
+    if not is_number(value):
+        raise TypeError(f"expected a number, got {value!r}")
+    return float(value)
 
-    def __init__(self, path: Path) -> None:
-        self.path = path
 
-    def fail(self, key: str, reason: str) -> typing.NoReturn:
-        raise ParamsFileError(f"{self.path}: key '{key}': {reason}")
+def _integer(value) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise TypeError(f"expected an integer, got {value!r}")
+    return value
 
-    def table(self, data: dict, name: str, where: str) -> dict:
-        key = f"{where}.{name}" if where else name
-        if name not in data:
-            raise ParamsFileError(f"{self.path}: missing key '{key}'")
-        if not isinstance(data[name], dict):
-            self.fail(key, f"expected a table, got {type(data[name]).__name__}")
-        return data[name]
 
-    def no_unknown(self, table: dict, allowed: set[str], where: str) -> None:
-        for key in table:
-            if key not in allowed:
-                self.fail(f"{where}.{key}" if where else key,
-                          f"unknown key; expected one of {', '.join(sorted(allowed))}")
+def _string(value) -> str:
+    if not isinstance(value, str):
+        raise TypeError(f"expected a string, got {value!r}")
+    return value
 
-    def value(self, table: dict, key: str, kind: type, where: str):
-        full = f"{where}.{key}"
-        if key not in table:
-            raise ParamsFileError(f"{self.path}: missing key '{full}'")
-        value = table[key]
-        if kind is float:
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                self.fail(full, f"expected a number, got {value!r}")
-            return float(value)
-        if kind is int:
-            if isinstance(value, bool) or not isinstance(value, int):
-                self.fail(full, f"expected an integer, got {value!r}")
-            return value
-        if kind is str:
-            if not isinstance(value, str):
-                self.fail(full, f"expected a string, got {value!r}")
-            return value
-        # tuple of floats
-        if not isinstance(value, list) or not all(isinstance(v, int | float) and not isinstance(v, bool)
-                                                  for v in value):
-            self.fail(full, f"expected an array of numbers, got {value!r}")
-        return tuple(float(v) for v in value)
 
-    def build(self, cls, table: dict, where: str, extra: dict | None = None, **kinds):
-        extra = extra or {}
-        self.no_unknown(table, set(kinds) | ({"pma"} if "pmas" in extra else set()), where)
-        values = {key: self.value(table, key, kind, where) for key, kind in kinds.items()}
-        try:
-            return cls(**values, **extra)
-        except ValueError as e:
-            # __post_init__ messages start with the field, or with a nested key such as section[1].pma[0].channel
-            field, _, reason = str(e).partition(": ")
-            if field.startswith("section[") or field == "section":
-                self.fail(field, reason)
-            if field in kinds or field == "pma":
-                self.fail(f"{where}.{field}", reason)
-            raise ParamsFileError(f"{self.path}: table '{where}': {e}") from e
+def _numbers(value) -> tuple[float, ...]:
+    if not isinstance(value, list) or not all(is_number(v) for v in value):
+        raise TypeError(f"expected an array of numbers, got {value!r}")
+    return tuple(float(v) for v in value)
 
-    def plate(self, data: dict, name: str) -> PlateParams:
-        return self.build(PlateParams, self.table(data, name, ""), name,
-                          radius_m=float, thickness_m=float, mass_kg=float)
 
-    def section(self, raw, where: str) -> SectionParams:
-        if not isinstance(raw, dict):
-            self.fail(where, "expected a table")
-        pmas_raw = raw.get("pma")
-        if not isinstance(pmas_raw, list) or not pmas_raw:
-            raise ParamsFileError(f"{self.path}: missing key '{where}.pma' (one [[section.pma]] table per PMA)")
-        pmas = tuple(
-            self.build(PMAParams, p if isinstance(p, dict) else self.fail(f"{where}.pma[{j}]", "expected a table"),
-                       f"{where}.pma[{j}]", channel=str, kind=str, azimuth_deg=float, moment_arm_m=float,
-                       helix_angle_deg=float, pressure_bar=tuple, moment_Nm=tuple)
-            for j, p in enumerate(pmas_raw))
-        return self.build(SectionParams, raw, where, extra={"pmas": pmas},
-                          length_m=float, radius_m=float, mass_kg=float, EI_Nm2=float, GJ_Nm2=float, EA_N=float,
-                          damping_time_s=float, n_links=int)
+# What each field of a parameter table holds, as a converter of the shared reader.
+_KINDS = {float: _number, int: _integer, str: _string, tuple: _numbers}
+
+
+def _build(cls, reader: TableReader, top: TableReader, extra: dict | None = None, **kinds):
+    """``cls`` from one table: its keys are exactly ``kinds`` (plus ``pma`` for a section), checked by type,
+    then by the dataclass, whose message is turned into the file's key."""
+    extra = extra or {}
+    reader.only(set(kinds) | ({"pma"} if "pmas" in extra else set()))
+    values = {key: reader.take(key, _KINDS[kind]) for key, kind in kinds.items()}
+    try:
+        return cls(**values, **extra)
+    except ValueError as e:
+        # __post_init__ messages start with the field, or with a nested key such as section[1].pma[0].channel
+        field, _, reason = str(e).partition(": ")
+        if field.startswith("section[") or field == "section":
+            raise top.error(field, reason) from e
+        if field in kinds or field == "pma":
+            raise reader.error(field, reason) from e
+        raise reader.fail(f"table {reader.name()}: {e}") from e
+
+
+def _section(reader: TableReader, top: TableReader) -> SectionParams:
+    pmas = tuple(_build(PMAParams, pma, top, channel=str, kind=str, azimuth_deg=float, moment_arm_m=float,
+                        helix_angle_deg=float, pressure_bar=tuple, moment_Nm=tuple)
+                 for pma in reader.tables("pma", what="one [[section.pma]] table per PMA"))
+    return _build(SectionParams, reader, top, extra={"pmas": pmas}, length_m=float, radius_m=float, mass_kg=float,
+                  EI_Nm2=float, GJ_Nm2=float, EA_N=float, damping_time_s=float, n_links=int)

@@ -11,8 +11,6 @@ OpenCV (x right, y down, z forward). ``T_world_cam_left`` maps left-camera point
 from __future__ import annotations
 
 import math
-import tomllib
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -22,114 +20,15 @@ import numpy as np
 
 from estimator import StereoCalibration
 from estimator.calibration import CalibrationValueError
+from estimator.config_file import ConfigFileError, TableReader, integer, number, read_toml, vector
 
-
-class ConfigFileError(ValueError):
-    """A twin configuration file is missing or malformed; the message names the file and the key."""
-
-
-# --- small TOML reading helpers shared by the twin's config files ---------------------------
+# The twin's files are read with the project's one TOML reader (``estimator.config_file``); its
+# ConfigFileError, TableReader and converters stay importable from here, as before.
 
 
 def load_toml(path: str | Path, what: str) -> dict[str, Any]:
-    """Read a TOML file or raise ConfigFileError naming it."""
-    path = Path(path)
-    try:
-        return tomllib.loads(path.read_text())
-    except FileNotFoundError as e:
-        raise ConfigFileError(f"{path}: {what} file not found") from e
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-        raise ConfigFileError(f"{path}: not a valid TOML {what} file ({e})") from e
-
-
-class TableReader:
-    """Take typed values out of one TOML table; every error names the file and the key.
-
-    Call :meth:`done` after the last :meth:`take` so a misspelt (unknown) key is an error too.
-    """
-
-    def __init__(self, path: Path, table: dict[str, Any], section: str | None = None) -> None:
-        self.path, self.section = Path(path), section
-        self._table = table
-        self._taken: set[str] = set()
-
-    def where(self, key: str) -> str:
-        return key if self.section is None else f"[{self.section}] {key}"
-
-    def error(self, key: str, message: str) -> ConfigFileError:
-        return ConfigFileError(f"{self.path}: key {self.where(key)}: {message}")
-
-    def sub(self, key: str, *, required: bool = True) -> TableReader | None:
-        """A nested table (``[key]`` at the top level, ``[section.key]`` below)."""
-        self._taken.add(key)
-        name = key if self.section is None else f"{self.section}.{key}"
-        if key not in self._table:
-            if required:
-                raise ConfigFileError(f"{self.path}: missing table [{name}]")
-            return None
-        if not isinstance(self._table[key], dict):
-            raise ConfigFileError(f"{self.path}: key {self.where(key)}: expected a table [{name}]")
-        return TableReader(self.path, self._table[key], name)
-
-    def take(self, key: str, convert: Callable[[Any], Any], default: Any = ...) -> Any:
-        self._taken.add(key)
-        if key not in self._table:
-            if default is ...:
-                raise ConfigFileError(f"{self.path}: missing key {self.where(key)}")
-            return default
-        try:
-            return convert(self._table[key])
-        except (TypeError, ValueError) as e:
-            raise self.error(key, str(e)) from e
-
-    def done(self) -> None:
-        unknown = sorted(set(self._table) - self._taken)
-        if unknown:
-            raise ConfigFileError(f"{self.path}: unknown key {self.where(unknown[0])}"
-                                  + (f" (and {', '.join(unknown[1:])})" if len(unknown) > 1 else ""))
-
-
-def number(lo: float = -math.inf, hi: float = math.inf, *, lo_open: bool = False) -> Callable[[Any], float]:
-    """A converter for a finite number in [lo, hi] (or (lo, hi] with ``lo_open``)."""
-
-    def convert(value: Any) -> float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise TypeError(f"expected a number, got {value!r}")
-        value = float(value)
-        if not math.isfinite(value) or value > hi or value < lo or (lo_open and value == lo):
-            bound = f"({lo}, {hi}]" if lo_open else f"[{lo}, {hi}]"
-            raise ValueError(f"expected a number in {bound}, got {value!r}")
-        return value
-
-    return convert
-
-
-def integer(lo: int, hi: int) -> Callable[[Any], int]:
-    def convert(value: Any) -> int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise TypeError(f"expected an integer, got {value!r}")
-        if not lo <= value <= hi:
-            raise ValueError(f"expected an integer in [{lo}, {hi}], got {value}")
-        return int(value)
-
-    return convert
-
-
-def vector(n: int | tuple[int, ...], lo: float = -math.inf, hi: float = math.inf) -> Callable[[Any], np.ndarray]:
-    """A converter for a list of ``n`` finite numbers (``n`` may list allowed lengths)."""
-    lengths = (n,) if isinstance(n, int) else n
-
-    def convert(value: Any) -> np.ndarray:
-        if not isinstance(value, list) or any(isinstance(v, bool) or not isinstance(v, int | float) for v in value):
-            raise TypeError(f"expected a list of numbers, got {value!r}")
-        if len(value) not in lengths:
-            raise ValueError(f"expected {' or '.join(map(str, lengths))} numbers, got {len(value)}")
-        array = np.asarray(value, dtype=np.float64)
-        if not np.all(np.isfinite(array)) or np.any(array < lo) or np.any(array > hi):
-            raise ValueError(f"expected finite numbers in [{lo}, {hi}], got {value!r}")
-        return array
-
-    return convert
+    """Read a TOML file of the twin or raise ConfigFileError naming it."""
+    return read_toml(path, what)
 
 
 # --- the rig ---------------------------------------------------------------------------------

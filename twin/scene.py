@@ -30,7 +30,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from twin.rig import ConfigFileError, SensorModel, TableReader, load_toml, number, vector
+from estimator.config_file import ConfigFileError, TableReader, number, read_toml, vector
+from twin.rig import SensorModel
 from twin.sensor import CameraEffects
 from twin.textures import PATTERNS
 
@@ -264,7 +265,7 @@ def clean_scene() -> LabScene:
 
 def preset_names(path: str | Path) -> list[str]:
     """The presets a scene file defines."""
-    data = load_toml(path, "scene")
+    data = read_toml(path, "scene")
     presets = data.get("preset", {})
     return sorted(presets) if isinstance(presets, dict) else []
 
@@ -283,7 +284,7 @@ def load_scene(path: str | Path, preset: str, seed: int = 0) -> LabScene:
             value (names the file, the preset and the key), unreadable backdrop image (names it).
     """
     path = Path(path)
-    data = load_toml(path, "scene")
+    data = read_toml(path, "scene")
     unknown = sorted(set(data) - {"preset"})
     if unknown:
         raise ConfigFileError(f"{path}: unknown key {unknown[0]}; a scene file holds only [preset.<name>] tables")

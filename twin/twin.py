@@ -17,42 +17,30 @@ camera's (OpenCV axes: x right, y down, z forward), the frame the estimator repo
 from __future__ import annotations
 
 from dataclasses import dataclass
+from importlib.resources import files
 from pathlib import Path
 
 import numpy as np
 
+from estimator.config_file import ConfigFileError, TableReader, boolean, file_in, integer, number, read_toml
+from hardware.interfaces import DEFAULT_CLAMP_TOLERANCE, MAX_CLAMP_TOLERANCE
 from twin.camera import SimStereoCamera
 from twin.params import ArmParams
 from twin.physics import ArmSimulation
-from twin.rig import ConfigFileError, StereoRig, TableReader, integer, load_toml, number
+from twin.rig import StereoRig
 from twin.scene import LabScene, clean_scene, load_scene
 from twin.shape import ArmShape
 from twin.valves import SimValveBank
 
-DEFAULT_CONFIG = Path(__file__).resolve().parents[1] / "models" / "twin.toml"
+# models/ is package data (importlib.resources finds it in a checkout and in an installed wheel alike).
+DEFAULT_CONFIG = Path(str(files("models") / "twin.toml"))
 FRAMES = ("camera", "world")
-
-
-def _boolean(value) -> bool:
-    if not isinstance(value, bool):
-        raise TypeError(f"expected true or false, got {value!r}")
-    return value
 
 
 def _name(value) -> str:
     if not isinstance(value, str) or not value.strip():
         raise TypeError(f"expected a preset name, got {value!r}")
     return value
-
-
-def _file(base: Path):
-    def convert(value) -> Path:
-        if not isinstance(value, str) or not value.strip():
-            raise TypeError(f"expected a file name, got {value!r}")
-        path = Path(value)
-        return path if path.is_absolute() else base / path
-
-    return convert
 
 
 @dataclass(frozen=True)
@@ -63,7 +51,9 @@ class TwinConfig:
         arm: the arm parameter file.
         camera: the stereo camera file.
         timestep_s: MuJoCo integration step.
-        clamp_pressures: clamp out-of-range set-points instead of raising.
+        clamp_pressures: clamp slightly out-of-range set-points instead of raising.
+        clamp_tolerance: how far outside [0, max] ``clamp_pressures`` reaches, a fraction of the
+            maximum pressure (further out is refused, clamping or not).
         seed: sensor-noise seed.
         tube_sides: vertices around the rendered tube.
         backbone_points: points of the ground-truth backbone (>= 100).
@@ -84,6 +74,7 @@ class TwinConfig:
     scene_file: Path | None = None
     scene_preset: str = "clean"
     scene_seed: int = 0
+    clamp_tolerance: float = DEFAULT_CLAMP_TOLERANCE
 
     def scene(self) -> LabScene:
         """The lab scene this configuration renders.
@@ -106,16 +97,18 @@ class TwinConfig:
             ConfigFileError: missing file, unknown or missing key, bad value; names file and key.
         """
         path = Path(path)
-        top = TableReader(path, load_toml(path, "twin"))
+        top = TableReader(path, read_toml(path, "twin"))
         base = path.parent
-        arm = top.take("arm", _file(base))
-        camera = top.take("camera", _file(base))
-        scene_file = top.take("scenes", _file(base), None)
+        arm = top.take("arm", file_in(base))
+        camera = top.take("camera", file_in(base))
+        scene_file = top.take("scenes", file_in(base), None)
         physics = top.sub("physics")
         timestep_s = physics.take("timestep_s", number(1e-5, 0.02), 0.002)
         physics.done()
         valves = top.sub("valves", required=False)
-        clamp = valves.take("clamp", _boolean, False) if valves else False
+        clamp = valves.take("clamp", boolean, False) if valves else False
+        tolerance = (valves.take("clamp_tolerance", number(0.0, MAX_CLAMP_TOLERANCE), DEFAULT_CLAMP_TOLERANCE)
+                     if valves else DEFAULT_CLAMP_TOLERANCE)
         if valves:
             valves.done()
         render = top.sub("render", required=False)
@@ -136,7 +129,8 @@ class TwinConfig:
         for key, file in (("arm", arm), ("camera", camera), ("scenes", scene_file)):
             if file is not None and not file.is_file():
                 raise ConfigFileError(f"{path}: key {key}: file {file} not found")
-        config = cls(arm, camera, timestep_s, clamp, seed, sides, points, path, scene_file, preset, scene_seed)
+        config = cls(arm, camera, timestep_s, clamp, seed, sides, points, path, scene_file, preset, scene_seed,
+                     tolerance)
         config.scene()  # a bad preset is an error now, naming this file, not when the camera connects
         return config
 
@@ -164,7 +158,7 @@ class Twin:
         self.rig = StereoRig.load(c.camera)
         self.scene = c.scene()
         self.sim = ArmSimulation(self.params, timestep_s=c.timestep_s)
-        self.valves = SimValveBank(self.sim, clamp=c.clamp_pressures)
+        self.valves = SimValveBank(self.sim, clamp=c.clamp_pressures, clamp_tolerance=c.clamp_tolerance)
         self.camera = SimStereoCamera(self.rig, self.shape, lambda: self.sim.time_s,
                                       seed=c.seed, tube_sides=c.tube_sides, scene=self.scene)
         self.valves.connect()

@@ -2,6 +2,7 @@
 
 import dataclasses
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -80,7 +81,7 @@ def test_default_config_sections():
     assert config.experiment == ExperimentConfig()
     assert config.estimator_config().mode == "default"
     assert config.estimator_config(mode="paper").compensation == "nearest"  # the paper's preset follows the mode
-    assert config.recording.root.resolve() == (REPO / "runs").resolve()
+    assert config.recording.root is None and config.recording.runs_root() == Path.cwd() / "runs"
     assert config.recording.lossless_frames and config.report.enabled
 
 

@@ -95,14 +95,18 @@ def test_relative_paths_resolve_against_the_config_folder(tmp_path, monkeypatch)
     assert config.path == path.resolve()
 
 
-def test_left_out_defaults_resolve_against_models_not_the_users_folder(tmp_path):
-    """A config elsewhere that leaves a section out gets the repository's defaults (models/twin.toml,
-    runs/), not files beside itself; the paths it does write resolve against its own folder."""
+def test_left_out_defaults_resolve_against_models_not_the_users_folder(tmp_path, monkeypatch):
+    """A config elsewhere that leaves a section out gets the shipped defaults (models/twin.toml), not
+    files beside itself, and runs go to runs/ under the working directory; the paths it does write
+    resolve against its own folder."""
     path = tmp_path / "x.toml"
     path.write_text('[recording]\nlossless_frames = true\n')
     config = load_bench_config(path)
     assert config.sim.twin == MODELS / "twin.toml" and config.sim.twin.is_file()
-    assert config.recording.root.resolve() == REPO / "runs"
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    assert config.recording.root is None and config.recording.runs_root() == elsewhere / "runs"
     path.write_text('[sim]\ntwin = "my_twin.toml"\n[recording]\nroot = "my_runs"\n')
     config = load_bench_config(path)
     assert config.sim.twin == tmp_path / "my_twin.toml" and config.recording.root == tmp_path / "my_runs"

@@ -1,8 +1,8 @@
 """Speed of ``softarm run``: where the wall-clock time of a run goes.
 
-    python benchmarks/bench.py                    # the default run: the paper's ramp, 690 frames, report included
-    python benchmarks/bench.py --frames 60        # a quicker run of the same experiment
-    python benchmarks/bench.py --run runs/<dir>   # the split of a run already recorded (no new run)
+    python benchmarks/run_speed.py                    # the default run: the paper's ramp, 690 frames, report included
+    python benchmarks/run_speed.py --frames 60        # a quicker run of the same experiment
+    python benchmarks/run_speed.py --run runs/<dir>   # the split of a run already recorded (no new run)
 
 Prints the split between start-up (twin, renderer, first settle), physics, rendering, ground truth,
 estimation, scoring, recording (the writer thread encodes PNGs beside the loop; the loop only
@@ -21,10 +21,9 @@ import time
 from pathlib import Path
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.config import load_bench_config  # noqa: E402
-from bench.run import RunOptions, run_experiment  # noqa: E402
+from bench.config import load_bench_config
+from bench.run import RunOptions, run_experiment
 
 TARGET_S = 180.0
 

@@ -5,7 +5,7 @@ Frames come from the digital twin along the paper's ramp (s1_a, s2_a, s3 from 0 
 the arm takes the shapes of the experiment. Each configuration runs the whole sequence with warm
 start, interleaved frame by frame so machine load affects all of them alike; medians are quoted.
 
-    python benchmarks/estimator.py [--frames 30] [--repeats 3]
+    python benchmarks/estimator_speed.py [--frames 30] [--repeats 3]
 """
 
 from __future__ import annotations
@@ -13,19 +13,14 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
-import sys
 import time
-from pathlib import Path
 
-# Run as a script, this file's folder comes first on sys.path and its name would shadow the
-# estimator package: put the repository first.
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from estimator import CenterlineEstimator, EstimatorConfig  # noqa: E402
-from estimator.som import linear_init, som_online  # noqa: E402
+from estimator import CenterlineEstimator, EstimatorConfig
+from estimator.som import linear_init, som_online
 
 CONFIGS = {
     "default": EstimatorConfig(),

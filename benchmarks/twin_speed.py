@@ -1,6 +1,6 @@
 """Speed of the digital twin: physics real-time factor and stereo rendering time.
 
-    python benchmarks/twin.py [--frames 20]
+    python benchmarks/twin_speed.py [--frames 20]
 
 Prints the physics real-time factor (simulated seconds per wall-clock second while the arm
 moves under a pressure ramp), and the median time to render one raw 1280x720 stereo pair (both
@@ -15,18 +15,16 @@ import os
 import statistics
 import sys
 import time
-from pathlib import Path
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from twin.params import ArmParams  # noqa: E402
-from twin.physics import ArmSimulation  # noqa: E402
-from twin.render import StereoRenderer  # noqa: E402
-from twin.rig import StereoRig  # noqa: E402
-from twin.twin import DEFAULT_CONFIG, TwinConfig  # noqa: E402
+from twin.params import ArmParams
+from twin.physics import ArmSimulation
+from twin.render import StereoRenderer
+from twin.rig import StereoRig
+from twin.twin import DEFAULT_CONFIG, TwinConfig
 
 
 def physics_rtf(config: TwinConfig, sim_seconds: float = 10.0) -> float:

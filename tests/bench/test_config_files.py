@@ -1,0 +1,199 @@
+"""The config files and where things go: one reader and one error type for every file, a rig config
+holding only what differs (``base``), clamp_tolerance reaching the valve banks, ``softarm --version``,
+runs under the working directory and ``runs/latest``."""
+
+import os
+import time
+import tomllib
+from pathlib import Path
+
+import pytest
+
+import bench.recording
+from bench.cli import main
+from bench.config import MODELS, ConfigError, load_bench_config
+from bench.factory import serial_valves
+from bench.recording import LATEST, point_latest, resolve_run_folder
+from bench.rig_check import rig_command
+from estimator.calibration import CalibrationFileError
+from estimator.config_file import ConfigFileError, TableReader, integer
+from tests.hardware.polling import wait_until
+from twin.params import ArmParams, ParamsFileError
+from twin.twin import TwinConfig
+
+# --- one reader, one error type -------------------------------------------------------------
+
+
+def test_every_file_raises_the_one_config_error(tmp_path):
+    import twin.rig
+
+    assert twin.rig.ConfigFileError is ConfigFileError and ConfigError is ConfigFileError
+    assert issubclass(CalibrationFileError, ConfigFileError) and issubclass(ParamsFileError, ConfigFileError)
+    broken = tmp_path / "broken.toml"
+    broken.write_text("[x\n")
+    loaders = [load_bench_config, TwinConfig.load, twin.rig.StereoRig.load, ArmParams.load,
+               lambda p: __import__("estimator").StereoCalibration.load(p)]
+    for load in loaders:
+        with pytest.raises(ConfigFileError, match=rf"{broken}: not a TOML .*file: not valid TOML"):
+            load(broken)
+
+
+def test_the_reader_names_the_file_and_the_key_and_suggests_the_closest_key(tmp_path):
+    path = tmp_path / "x.toml"
+    reader = TableReader(path, {"render": {"sed": 1, "tube_sides": 4.5}})
+    render = reader.sub("render")
+    with pytest.raises(ConfigFileError, match=rf"^{path}: key \[render\] tube_sides: expected an integer, got 4.5$"):
+        render.take("tube_sides", integer(8, 512))
+    render.take("seed", integer(0, 9), 0)
+    with pytest.raises(ConfigFileError, match=rf"^{path}: unknown key \[render\] sed; did you mean 'seed'\?"):
+        render.done()
+    with pytest.raises(ConfigFileError, match=rf"^{path}: missing table \[physics\]$"):
+        reader.sub("physics")
+    dotted = TableReader(path, {"section": [{"n": 1}]}, dotted=True)
+    (section,) = dotted.tables("section")
+    with pytest.raises(ConfigFileError, match=rf"^{path}: missing key 'section\[0\].m'$"):
+        section.take("m", integer(0, 9))
+
+
+# --- bench_rig.toml: what differs from bench.toml, nothing else -------------------------------------------
+
+
+def test_the_rig_config_holds_only_what_differs_from_bench_toml():
+    data = tomllib.loads((MODELS / "bench_rig.toml").read_text())
+    assert data == {"base": "bench.toml", "backend": "rig", "experiment": {"lead_in_s": 2.0}}
+    sim, rig = load_bench_config(), load_bench_config(MODELS / "bench_rig.toml")
+    assert rig.rig == sim.rig and rig.recording == sim.recording and rig.report == sim.report
+
+
+def test_a_base_is_merged_table_by_table_and_keeps_its_own_relative_paths(tmp_path):
+    (tmp_path / "lab").mkdir()
+    base = tmp_path / "lab" / "base.toml"
+    base.write_text('[sim]\ntwin = "my_twin.toml"\n[experiment]\nframes = 12\nmax_bar = 1.0\n'
+                    '[rig.camera]\nsource = "session"\ncalibration = "calib.toml"\n')
+    mine = tmp_path / "mine.toml"
+    mine.write_text('base = "lab/base.toml"\n[experiment]\nframes = 7\n[rig.camera]\nfps = 30\n')
+    config = load_bench_config(mine)
+    assert config.path == mine.resolve()
+    assert (config.experiment.frames, config.experiment.max_bar) == (7, 1.0)
+    assert config.sim.twin == tmp_path / "lab" / "my_twin.toml"  # the base's path, against the base's folder
+    assert config.rig.camera.source == tmp_path / "lab" / "session" and config.rig.camera.fps == 30
+
+
+def test_a_bad_base_is_named_by_the_file_that_holds_the_error(tmp_path):
+    base = tmp_path / "base.toml"
+    base.write_text("[experiment]\nframs = 3\n")
+    mine = tmp_path / "mine.toml"
+    mine.write_text('base = "base.toml"\n')
+    with pytest.raises(ConfigError, match=rf"^{base}: unknown key \[experiment\] frams; did you mean 'frames'"):
+        load_bench_config(mine)
+    mine.write_text('base = "nowhere.toml"\n')
+    with pytest.raises(ConfigError, match=rf"^{mine}: key base: .*nowhere.toml: config file not found"):
+        load_bench_config(mine)
+    base.write_text('base = "mine.toml"\n')
+    mine.write_text('base = "base.toml"\n')
+    with pytest.raises(ConfigError, match=r"key base: .*mine.toml leads back to this file \(a cycle: "):
+        load_bench_config(mine)
+    mine.write_text("base = 3\n")
+    with pytest.raises(ConfigError, match=r"key base: expected the config file this one changes, got 3"):
+        load_bench_config(mine)
+
+
+# --- clamp_tolerance reaches the valve banks ------------------------------------------------------
+
+
+def test_clamp_tolerance_of_rig_valves_reaches_the_serial_bank(tmp_path):
+    path = tmp_path / "bench.toml"
+    path.write_text('[rig.camera]\nsource = 0\ncalibration = "x.conf"\nfps = 30\n'
+                    '[rig.valves]\nport = "loop://"\nclamp = true\nclamp_tolerance = 0.3\n')
+    valves_config = load_bench_config(path).rig.valves
+    assert valves_config.clamp_tolerance == 0.3
+    assert serial_valves(valves_config).clamp_tolerance_bar == pytest.approx(0.3 * 2.5)
+    assert load_bench_config().rig.valves.clamp_tolerance == 0.1  # bench.toml writes the default
+    path.write_text(path.read_text().replace("0.3", "0.9"))
+    with pytest.raises(ConfigError, match=r"\[rig.valves\] clamp_tolerance: expected a fraction of max_pressure_bar "
+                                          r"in \[0, 0.5\], got 0.9"):
+        load_bench_config(path)
+
+
+def test_clamp_tolerance_of_twin_toml_reaches_the_sim_bank(tmp_path):
+    for name in ("twin.toml", "arm.toml", "camera.toml", "scene.toml"):
+        (tmp_path / name).write_text((MODELS / name).read_text())
+    path = tmp_path / "twin.toml"
+    path.write_text(path.read_text().replace("clamp = false", "clamp = true").replace("clamp_tolerance = 0.1",
+                                                                                      "clamp_tolerance = 0.2"))
+    config = TwinConfig.load(path)
+    assert config.clamp_pressures and config.clamp_tolerance == 0.2
+    from twin.params import ArmParams as Params
+    from twin.physics import ArmSimulation
+    from twin.valves import SimValveBank
+
+    sim = ArmSimulation(Params.load(config.arm), timestep_s=config.timestep_s)
+    bank = SimValveBank(sim, clamp=config.clamp_pressures, clamp_tolerance=config.clamp_tolerance)
+    assert bank.clamp_tolerance_bar == pytest.approx(0.2 * sim.max_pressure_bar)
+    path.write_text(path.read_text().replace("clamp_tolerance = 0.2", "clamp_tolerance = 2"))
+    with pytest.raises(ConfigFileError, match=r"key \[valves\] clamp_tolerance: expected a number in \[0.0, 0.5\]"):
+        TwinConfig.load(path)
+
+
+# --- rig check: the board's line-noise count -----------------------------------------------------------
+
+
+def test_rig_check_prints_the_boards_unreadable_frames(tmp_path, zed_conf_dir, board, capsys):
+    import numpy as np
+    import serial
+
+    from tests.bench.test_factory import write_config
+    from tests.fakes import write_side_by_side_video
+
+    write_side_by_side_video(tmp_path / "zed.mkv", [np.full((720, 2560, 3), 90, np.uint8)] * 2)
+    path = write_config(tmp_path, backend="sim", port=board.port, source="zed.mkv",
+                        calibration=str(zed_conf_dir / "SN1010.conf"))
+    with serial.Serial(board.port, timeout=0.1) as line:  # line noise: three lines the board cannot read
+        line.write(b"%%noise\n#garbled 12\n~~\n")
+        line.flush()
+        wait_until(lambda: board.unreadable_frames >= 3, timeout_s=5.0)
+        time.sleep(0.1)
+        line.reset_input_buffer()
+    assert rig_command(type("Args", (), {"config": str(path)})()) == 0
+    out = capsys.readouterr().out
+    assert f"unreadable frames (line noise) since the board started: {board.unreadable_frames}" in out, out
+    assert board.unreadable_frames >= 3
+
+
+# --- softarm --version, runs/ and runs/latest ----------------------------------------------------------
+
+
+def test_version(capsys):
+    from importlib.metadata import version
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["--version"])
+    assert exit_.value.code == 0
+    assert capsys.readouterr().out.strip() == f"softarm {version('softarm-twin')}"
+
+
+def test_latest_points_to_the_newest_run_and_falls_back_to_a_text_file(tmp_path, monkeypatch):
+    runs = tmp_path / "runs"
+    first, second = runs / "2026-01-01_000000", runs / "2026-01-01_000001"
+    for folder in (first, second):
+        folder.mkdir(parents=True)
+    point_latest(first)
+    assert (runs / LATEST).is_symlink() and os.readlink(runs / LATEST) == first.name  # relative: the folder can move
+    point_latest(second)
+    assert resolve_run_folder(runs / LATEST) == second and (runs / LATEST / ".").resolve() == second.resolve()
+
+    def no_links(*args, **kwargs):
+        raise OSError("symbolic links are not supported here")
+
+    monkeypatch.setattr(bench.recording.os, "symlink", no_links)
+    point_latest(first)
+    latest = runs / LATEST
+    assert latest.is_file() and not latest.is_symlink() and latest.read_text().strip() == first.name
+    assert resolve_run_folder(latest) == first
+    assert not list(runs.glob(".latest*"))  # no temporary left behind
+
+
+def test_runs_go_under_the_working_directory(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    root = load_bench_config().recording.runs_root()
+    assert root == tmp_path / "runs" and Path.cwd() == tmp_path
