@@ -12,10 +12,9 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy.interpolate import make_interp_spline
 
 from twin.meshes import tube_surface
-from twin.scene import Backdrop, LabScene, SceneObject, Surface
+from twin.scene import BLOB_BUMP, Backdrop, LabScene, SceneObject, Surface, cable_curve
 from twin.textures import procedural_texture, value_noise
 
 TEXTURE_PX = 512  # texture tile of an object, pixels on a side
@@ -95,7 +94,7 @@ def blob_part(semi_axes_m, surface: Surface, seed: int, rings: int = 18, segment
     theta = np.linspace(0.0, math.pi, rings + 1)
     phi = np.linspace(0.0, 2.0 * math.pi, segments + 1)
     th, ph = np.meshgrid(theta, phi, indexing="ij")
-    bumps = 1.0 + 0.15 * value_noise((rings + 1, segments + 1), 6.0, rng, octaves=2)
+    bumps = 1.0 + BLOB_BUMP * value_noise((rings + 1, segments + 1), 6.0, rng, octaves=2)
     bumps[:, -1] = bumps[:, 0]  # the seam closes
     bumps[0, :], bumps[-1, :] = bumps[0].mean(), bumps[-1].mean()  # and so do the poles
     unit = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1)
@@ -131,14 +130,8 @@ def _outward(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 def cable_part(points_m, radius_m: float, surface: Surface, seed: int, sides: int = 12) -> Part:
     """A cable: a tube of ``radius_m`` along a smooth curve through ``points_m``."""
-    control = np.asarray(points_m, np.float64)
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(control, axis=0), axis=1))])
-    keep = np.concatenate([[True], np.diff(arc) > 1e-9])
-    control, arc = control[keep], arc[keep]
-    count = max(int(arc[-1] / 0.01), 8)
-    at = np.linspace(0.0, arc[-1], count)
-    k = min(3, len(control) - 1)
-    curve = make_interp_spline(arc, control, k=k)(at)
+    curve = cable_curve(points_m)
+    at = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(curve, axis=0), axis=1))])
     positions, normals, faces = tube_surface(curve, np.full(len(curve), radius_m), sides)
     texture = _texture_for(surface, seed)
     uv = None
@@ -168,13 +161,16 @@ def backdrop_parts(backdrop: Backdrop, seed: int, px_per_m: float = 400.0) -> li
                         [cx + width / 2, y, cz + height / 2], [cx - width / 2, y, cz + height / 2]])
     normals = np.tile([0.0, -1.0, 0.0], (4, 1))
     faces = [[0, 1, 2], [0, 2, 3]]  # counter-clockwise seen from the camera (x right, z up)
-    uv = np.array([[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]])  # image rows run downwards
+    # pyrender uploads a texture bottom row first (OpenGL's order), so v = 1 is the image's top row.
+    uv = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
     surface = backdrop.surface
     if backdrop.kind == "image":
         texture = cv2.cvtColor(cv2.imread(str(backdrop.image), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
     elif backdrop.kind == "procedural":
-        shape = (min(int(height * px_per_m), 2048), min(int(width * px_per_m), 4096))
-        feature_px = surface.feature_m * shape[0] / height
+        # One scale both ways (a size limit must not stretch the bricks), capped by the texture limits.
+        px_per_m = min(px_per_m, 2048 / height, 4096 / width)
+        shape = (max(int(round(height * px_per_m)), 2), max(int(round(width * px_per_m)), 2))
+        feature_px = surface.feature_m * px_per_m
         texture = procedural_texture(surface.texture, shape, surface.rgb, surface.contrast, feature_px, seed)
     else:
         texture = None

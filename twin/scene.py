@@ -29,6 +29,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from scipy.interpolate import make_interp_spline
 
 from estimator.config_file import ConfigFileError, TableReader, number, read_toml, vector
 from twin.rig import SensorModel
@@ -38,6 +39,7 @@ from twin.textures import PATTERNS
 KINDS = ("box", "cable", "blob")
 ROLES = ("distractor", "occluder")
 BACKDROPS = ("uniform", "image", "procedural")
+BLOB_BUMP = 0.15  # a blob's radius varies by up to this share of its semi-axes (twin.lab_objects.blob_part)
 REQUIRED_PRESETS = ("clean", "lab", "dim", "bright_warm", "blur", "occluded", "random")
 
 # Named materials: display RGB and the texture they carry. Wood, skin and orange sit inside the
@@ -151,6 +153,13 @@ class SceneObject:
         s = u * arc[-1]
         return np.array([np.interp(s, arc, path[:, k]) for k in range(3)])
 
+    def bounding_points_m(self) -> np.ndarray:
+        """(N, 3) points in the object's frame whose convex hull holds its surface (a cable: its axis)."""
+        if self.kind == "cable":
+            return cable_curve(self.points_m)
+        semi = np.asarray(self.size_m, dtype=np.float64) * (0.5 if self.kind == "box" else 1.0 + BLOB_BUMP)
+        return np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * semi
+
     def T_world(self, t_s: float = 0.0) -> np.ndarray:
         """(4, 4) pose of the object's frame in the world at time ``t_s``."""
         rx, ry, rz = np.radians(self.rotation_deg)
@@ -235,6 +244,17 @@ class LabScene:
         return clean(self)
 
 
+def cable_curve(points_m, spacing_m: float = 0.01) -> np.ndarray:
+    """(M, 3) a smooth curve through a cable's control points (cubic where there are four or more),
+    sampled every ``spacing_m`` or closer (at least 8 samples)."""
+    control = np.asarray(points_m, np.float64)
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(control, axis=0), axis=1))])
+    keep = np.concatenate([[True], np.diff(arc) > 1e-9])
+    control, arc = control[keep], arc[keep]
+    at = np.linspace(0.0, arc[-1], max(int(arc[-1] / spacing_m), 8))
+    return make_interp_spline(arc, control, k=min(3, len(control) - 1))(at)
+
+
 # --- colour temperature ------------------------------------------------------------------------
 
 
@@ -293,12 +313,26 @@ def load_scene(path: str | Path, preset: str, seed: int = 0) -> LabScene:
         raise ConfigFileError(f"{path}: no presets: expected [preset.<name>] tables")
     if preset not in raw:
         raise ConfigFileError(f"{path}: unknown preset {preset!r}; the file defines {', '.join(sorted(raw))}")
-    for name in raw:  # every preset's table is read when any is used, so a typo anywhere shows at once
-        _merged(path, raw, name)
-    merged = _merged(path, raw, preset)
-    if merged.get("random") is True:
-        return random_scene(seed, source=path, description=str(merged.get("description", "")))
-    return _parse_preset(path, preset, merged, seed)
+    scenes = {}
+    for name in sorted(raw):  # every preset is read when any is used, so a typo anywhere shows at once
+        merged = _merged(path, raw, name)
+        if merged.get("random") is True:
+            scenes[name] = _parse_random(path, name, merged, seed)
+        else:
+            scenes[name] = _parse_preset(path, name, merged, seed)
+    return scenes[preset]
+
+
+def _parse_random(path: Path, name: str, table: dict, seed: int) -> LabScene:
+    """A preset marked ``random = true``: the draw sets every knob, so only a description may go with it."""
+    top = TableReader(path, table, f"preset.{name}")
+    top.take("random", _boolean)
+    description = top.take("description", _text, "")
+    unused = sorted(set(table) - {"random", "description"})
+    if unused:
+        raise top.error(unused[0], "a random preset draws every knob from the seed; it takes only "
+                                   "random and description")
+    return random_scene(seed, source=path, description=description, preset=name)
 
 
 def _merged(path: Path, presets: dict, name: str, chain: tuple[str, ...] = ()) -> dict:
@@ -374,9 +408,12 @@ def _parse_preset(path: Path, name: str, table: dict, seed: int) -> LabScene:
     backdrop = None
     wall = top.sub("backdrop", required=False)
     if wall is not None:
+        wall_table = table["backdrop"]
         kind = wall.take("kind", _choice(BACKDROPS))
         surface = _surface(wall, (0.64, 0.69, 0.76), "plaster" if kind == "procedural" else None)
         if kind != "procedural":
+            if "texture" in wall_table:  # it would be dropped without a word
+                raise wall.error("texture", f"a {kind} backdrop has no texture; use kind = \"procedural\"")
             surface = replace(surface, texture=None)
         elif surface.texture is None:
             raise wall.error("texture", f"a procedural backdrop needs a texture: one of {', '.join(PATTERNS)}")
@@ -390,6 +427,8 @@ def _parse_preset(path: Path, name: str, table: dict, seed: int) -> LabScene:
         floor = None
         floor_z = wall.take("floor_z_m", number(-5.0, 0.0), None)
         floor_table = wall.sub("floor", required=False)
+        if floor_table is not None and floor_z is None:  # a floor without a height would be dropped
+            raise wall.error("floor", "a [floor] table needs floor_z_m, the floor's height")
         if floor_table is not None:
             floor = _surface(floor_table, (0.5, 0.48, 0.45), None)
             floor_table.done()
@@ -511,8 +550,8 @@ def _rot(axis: str, angle: float) -> np.ndarray:
 
 # --- the random preset ---------------------------------------------------------------------------
 
-# Ranges of the random draw (uniform unless noted). Objects keep out of a corridor around the
-# arm's reach in front of the wall only where they would pierce it; they may stand behind it.
+# Ranges of the random draw (uniform unless noted). Distractors are drawn beside the arm (0.3 to
+# 0.9 m to its side), then moved just clear of the wall and the floor (_inside_room).
 RANDOM_RANGES = {
     "wall_y_m": (0.5, 1.6),
     "wall_contrast": (0.03, 0.35),
@@ -530,8 +569,13 @@ RANDOM_RANGES = {
 }
 
 
-def random_scene(seed: int, *, source: Path | None = None, description: str = "") -> LabScene:
-    """A seeded draw over every knob: backdrop, objects (an occluder sometimes), lights, camera."""
+def random_scene(seed: int, *, source: Path | None = None, description: str = "", preset: str = "random") -> LabScene:
+    """A seeded draw over every knob: backdrop, objects (an occluder sometimes), lights, camera.
+
+    Distractors stand in front of the wall and on or above the floor (a box half inside the wall
+    is no lab): each is moved towards the camera or up just enough, after the draw, so the
+    sequence of random numbers and every other knob stay as drawn.
+    """
     rng = np.random.default_rng(seed)
     R = RANDOM_RANGES
 
@@ -563,10 +607,11 @@ def random_scene(seed: int, *, source: Path | None = None, description: str = ""
             start = np.array([0.0, 0.0, rng.uniform(0.0, 0.3)])
             points = tuple(tuple((start + [rng.uniform(-0.15, 0.15), rng.uniform(-0.1, 0.1), -0.25 * k]).tolist())
                            for k in range(4))
-        objects.append(SceneObject(name=f"{material}_{kind}{i + 1}", kind=kind, role="distractor",
-                                   surface=Surface(rgb, texture, 0.25, 0.01), centre_m=centre,
-                                   rotation_deg=tuple(float(v) for v in rng.uniform(-30, 30, 3)), size_m=size,
-                                   points_m=points, radius_m=float(rng.uniform(0.003, 0.012))))
+        obj = SceneObject(name=f"{material}_{kind}{i + 1}", kind=kind, role="distractor",
+                          surface=Surface(rgb, texture, 0.25, 0.01), centre_m=centre,
+                          rotation_deg=tuple(float(v) for v in rng.uniform(-30, 30, 3)), size_m=size,
+                          points_m=points, radius_m=float(rng.uniform(0.003, 0.012)))
+        objects.append(_inside_room(obj, backdrop))
     if rng.random() < 0.4:
         y = float(rng.uniform(-0.55, -0.25))
         z = float(rng.uniform(-0.6, -0.15))
@@ -588,8 +633,20 @@ def random_scene(seed: int, *, source: Path | None = None, description: str = ""
               "exposure_s": uniform("exposure_s"),
               "shake_px": uniform("shake_px") if rng.random() < 0.3 else 0.0,
               "shake_angle_deg": float(rng.uniform(-90, 90))}
-    return LabScene(preset="random", seed=int(seed), description=description or "a seeded draw over every knob",
+    return LabScene(preset=preset, seed=int(seed), description=description or "a seeded draw over every knob",
                     backdrop=backdrop, objects=tuple(objects), lighting=lighting, camera=camera, source=source)
+
+
+def _inside_room(obj: SceneObject, backdrop: Backdrop, clearance_m: float = 0.005) -> SceneObject:
+    """The object moved towards the camera (-y) and up (+z) just enough to clear the wall and the floor."""
+    points = obj.bounding_points_m() @ obj.T_world(0.0)[:3, :3].T + np.asarray(obj.centre_m)
+    margin = clearance_m + (obj.radius_m if obj.kind == "cable" else 0.0)
+    dy = min(0.0, backdrop.wall_y_m - margin - float(points[:, 1].max()))
+    dz = 0.0 if backdrop.floor_z_m is None else max(0.0, backdrop.floor_z_m + margin - float(points[:, 2].min()))
+    if dy == 0.0 and dz == 0.0:
+        return obj
+    x, y, z = obj.centre_m
+    return replace(obj, centre_m=(x, y + dy, z + dz))
 
 
 def _random_direction(rng: np.random.Generator) -> np.ndarray:

@@ -143,9 +143,13 @@ def yuyv_round_trip(image_bgr: np.ndarray) -> np.ndarray:
 
 
 def shake_kernel(length_px: float, angle_deg: float) -> np.ndarray:
-    """A normalised linear motion-blur kernel of ``length_px`` along ``angle_deg`` (anti-aliased)."""
-    size = int(math.ceil(length_px)) | 1
-    size = max(size, 3)
+    """A normalised linear motion-blur kernel of ``length_px`` along ``angle_deg`` (anti-aliased).
+
+    The angle is measured from the image rows towards +v (down). The segment's ends splat onto
+    the pixels beside them, so the kernel has a pixel to spare at each end: cut there, a 9 px
+    shake would blur like an 8.5 px one.
+    """
+    size = (int(math.ceil(length_px)) + 2) | 1
     kernel = np.zeros((size, size), np.float32)
     c = (size - 1) / 2.0
     dx, dy = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
