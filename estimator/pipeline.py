@@ -31,7 +31,7 @@ from estimator.correspondence import compensate_nodes, match_rows
 from estimator.edges import subpixel_edges
 from estimator.mount import MountLearner
 from estimator.profile import BASE_RAMP_WIDTHS, BASE_SKIP_WIDTHS, base_ramp, measured_radius_m, with_width_cue
-from estimator.refinement import Centerline2D, refine_centerline
+from estimator.refinement import Centerline2D, edge_distance, refine_centerline
 from estimator.segmentation import (
     bounding_box,
     contour_points,
@@ -50,6 +50,8 @@ COARSE_WIDTH_PX = 320  # the coarse images the arm is looked for on are about th
 RADIUS_PRIOR_SIGMA_M = 0.004  # how far the configured radius may be off before the images correct it
 MIN_TUBE_INLIERS = 0.8  # share of edges within a pixel of the fitted tube
 MAX_TUBE_RMS_PX = 0.6  # RMS of those edges
+OUTLINE_FAN_DEG = 70.0  # rays around an end, either side of the centerline's direction
+OUTLINE_STEP_DEG = 10.0
 MAX_END_BRIDGE_WIDTHS = 1.0  # an end hidden over more than this many arm widths is a guess, not a measurement
 # The fit's covariance overstates the error of a well-seen arm (typically 3-15 mm at the tip, where
 # the error is 1-5 mm) but grows to 40-110 mm where an occluder hides the tip: only that is refused.
@@ -121,7 +123,7 @@ class _Side:
     learn: tuple | None = None  # (hsv, gate, mask, offset) of the region: what the colour model learns from
     image: np.ndarray | None = None  # the rectified region of interest (BGR), for sub-pixel edges
     offset: np.ndarray | None = None  # its top-left corner on the rectified canvas
-    edges: tuple | None = None  # (edge points, their chords' centres, (base, tip) ends), canvas pixels
+    edges: tuple | None = None  # (edge points, their chords' centres, (base, tip) ends, outlines at both ends)
 
 
 class CenterlineEstimator:
@@ -329,7 +331,7 @@ class CenterlineEstimator:
                 nodes = resample_polyline(curve.points, cfg.n_points)
             if cfg.tube_fit:
                 with _timed(timings, "edges"):
-                    edges = _silhouette_edges(crop, curve, offset)
+                    edges = _silhouette_edges(crop, mask, curve, offset)
         else:
             nodes = nodes + offset
             width = float(np.count_nonzero(mask)) / max(_polyline_length(nodes), 1.0)
@@ -464,7 +466,7 @@ class CenterlineEstimator:
             curve = None if r.curve is None else Centerline2D(r.curve.points[::-1], r.curve.valid[::-1],
                                                               r.curve.half_width_px[::-1],
                                                               r.curve.arc_px[-1] - r.curve.arc_px[::-1])
-            edges = None if r.edges is None else (r.edges[0], r.edges[1], r.edges[2][::-1].copy())
+            edges = None if r.edges is None else (r.edges[0], r.edges[1], r.edges[2][::-1].copy(), r.edges[3][::-1])
             sides["right"] = _Side(r.nodes[::-1].copy(), curve, r.width_px, r.area_px, r.learn, r.image, r.offset,
                                    edges)
 
@@ -580,22 +582,25 @@ class CenterlineEstimator:
         f, centre = self._rect.focal_px, np.array([P[0, 2], P[1, 2]])
         side_ids, xy, chord = [], [], []
         ends = {"base": np.full((2, 2), np.nan), "tip": np.full((2, 2), np.nan)}
+        tip_outline: dict[int, np.ndarray] = {}
         for k, side in enumerate(SIDES):
             if sides[side].edges is None:
                 raise _NoArmError(f"no silhouette edges measured in the {side} image")
-            points, centres, (base, tip) = sides[side].edges
+            points, centres, (base, tip), outlines = sides[side].edges
             xy.append((points - centre) / f)
             chord.append((centres - centre) / f)
             side_ids.append(np.full(len(points), k))
             ends["base"][k] = (base - centre) / f
             ends["tip"][k] = (tip - centre) / f
+            tip_outline[k] = (outlines[1] - centre) / f
         side_ids = np.concatenate(side_ids)
         edges = EdgeSet(side_ids, np.concatenate(xy), np.concatenate(chord), np.ones(len(side_ids)))
         if self._radius is None:
             self._radius = np.full(RADIUS_BINS, cfg.arm_radius_m)
             self._radius_info = np.full(RADIUS_BINS, 1.0 / RADIUS_PRIOR_SIGMA_M**2)
         fit = fit_tube(edges, ends, dense, self._radius, 1.0 / np.sqrt(self._radius_info), focal_px=f,
-                       baseline_m=self._rect.baseline_m, base_prior=self._base.prior, initial_control=warm_control)
+                       baseline_m=self._rect.baseline_m, base_prior=self._base.prior, initial_control=warm_control,
+                       tip_outline=tip_outline)
         if fit is None:
             raise _NoArmError("the tube could not be fitted to the silhouettes' edges")
         if fit.inliers < MIN_TUBE_INLIERS or fit.rms_px > MAX_TUBE_RMS_PX:
@@ -711,14 +716,16 @@ def _timed(timings: dict, stage: str):
         timings[stage] = timings.get(stage, 0.0) + (time.perf_counter() - start) * 1e3
 
 
-def _silhouette_edges(image: np.ndarray, curve: Centerline2D, offset: np.ndarray):
-    """Sub-pixel silhouette edges of one image's clean chords and its two ends (rectified canvas pixels).
+def _silhouette_edges(image: np.ndarray, mask: np.ndarray, curve: Centerline2D, offset: np.ndarray):
+    """Sub-pixel silhouette edges of one image's clean chords, its two ends and the outline around
+    each end (rectified canvas pixels).
 
     Only clean chords: searching at the neighbours' width where a chord is not clean finds the
     baseplates' and the caps' edges as often as the tube's (measured: 2.2 -> 9.9 mm RMSE).
 
     Returns:
-        (edge points (K, 2), the centres of their chords (K, 2), (2, 2) base and tip ends).
+        (edge points (K, 2), the centres of their chords (K, 2), (2, 2) base and tip ends,
+        (outline at the base (M, 2), outline at the tip (M, 2))).
     """
     tangent = np.gradient(curve.points, axis=0)
     tangent /= np.linalg.norm(tangent, axis=1, keepdims=True) + 1e-12
@@ -731,7 +738,37 @@ def _silhouette_edges(image: np.ndarray, curve: Centerline2D, offset: np.ndarray
         points.append(curve.points[ok] + offsets[ok, column][:, None] * normals[ok])
         centres.append(curve.points[ok])
     ends = np.array([_subpixel_end(image, offset, curve, end) for end in (0, -1)])
-    return np.concatenate(points), np.concatenate(centres), ends
+    mask01 = (mask > 0).astype(np.float32)
+    outlines = tuple(_end_outline(image, mask01, offset, curve, end) for end in (0, -1))
+    return np.concatenate(points), np.concatenate(centres), ends, outlines
+
+
+def _end_outline(image: np.ndarray, mask01: np.ndarray, offset: np.ndarray, curve: Centerline2D,
+                 end: int) -> np.ndarray:
+    """Sub-pixel points of the silhouette's outline around one end: rays fanned out from the last
+    clean chord's centre towards the end, each moved from the mask's edge to the image's."""
+    inside = np.flatnonzero(curve.valid)
+    if len(inside) == 0:
+        return np.zeros((0, 2))
+    i = inside[0] if end == 0 else inside[-1]
+    along = curve.points[end] - curve.points[i]
+    reach = float(np.linalg.norm(along))
+    if reach < 1.0:
+        return np.zeros((0, 2))
+    along /= reach
+    across = np.array([-along[1], along[0]])
+    origin = curve.points[i] - offset
+    half = float(curve.half_width_px[i]) if np.isfinite(curve.half_width_px[i]) else reach
+    angles = np.radians(np.arange(-OUTLINE_FAN_DEG, OUTLINE_FAN_DEG + 1e-9, OUTLINE_STEP_DEG))
+    directions = np.cos(angles)[:, None] * along + np.sin(angles)[:, None] * across
+    guesses = np.array([edge_distance(mask01, origin, d, 3.0 * max(half, reach) + 10.0) for d in directions])
+    ok = guesses > 1.0
+    if not ok.any():
+        return np.zeros((0, 2))
+    starts = np.repeat(origin[None], int(ok.sum()), axis=0)
+    offsets, _ = subpixel_edges(image, starts, directions[ok], guesses[ok], np.ones(int(ok.sum()), bool))
+    found = np.isfinite(offsets[:, 1])
+    return curve.points[i] + offsets[found, 1][:, None] * directions[ok][found]
 
 
 def _subpixel_end(image: np.ndarray, offset: np.ndarray, curve: Centerline2D, end: int) -> np.ndarray:

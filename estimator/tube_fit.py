@@ -44,6 +44,10 @@ HUBER_PX = 1.0  # residuals beyond this (in pixels) count linearly, not quadrati
 SMOOTH_SIGMA_M = 0.015  # third difference of the control points that costs as much as one pixel of edge
 END_SIGMA_PX = 2.0  # the ends are found like the edges, but on a cap or against the mount's rim
 END_STIFFNESS = 4.0
+CAP_SAMPLES = 32  # points on the rim of the tube's flat end, for its outline
+CAP_SIGMA_PX = 0.7  # an outline point around the tip: an edge, but on a curved and differently lit cap
+MIN_CAP_POINTS = 4  # per image; with fewer the tip keeps its single end point
+OUTLINE_ITERATIONS = 3
 END_SIDES = (0, 1)
 BASE_SIGMA_M = 0.001  # the mount does not move: a learned base point holds to a millimetre
 BASE_DIRECTION_SIGMA = 0.02  # and the arm leaves it in the same direction (radians)
@@ -186,9 +190,55 @@ def _end_residual(C, D, r, x, y, cap):
 
 
 @numba.njit(cache=True, nogil=True)
+def _cap_residual(C, D, r, x, y):
+    """Distance (normalised units) from (x, y) to the outline of the tube's flat end: the nearer of
+    its two silhouette lines and the image of the end's rim (a circle of radius r across the axis)."""
+    best = min(abs(_edge_residual(C, D, r, x, y, 1.0)), abs(_edge_residual(C, D, r, x, y, -1.0)))
+    tn = math.sqrt(D[0] * D[0] + D[1] * D[1] + D[2] * D[2])
+    if tn < 1e-12:
+        return np.nan
+    T0, T1, T2 = D[0] / tn, D[1] / tn, D[2] / tn
+    # two unit vectors across the axis
+    if abs(T0) < 0.9:
+        a0, a1, a2 = 0.0, -T2, T1  # T x (1, 0, 0)
+    else:
+        a0, a1, a2 = T2, 0.0, -T0  # T x (0, 1, 0)
+    an = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+    a0, a1, a2 = a0 / an, a1 / an, a2 / an
+    b0 = T1 * a2 - T2 * a1
+    b1 = T2 * a0 - T0 * a2
+    b2 = T0 * a1 - T1 * a0
+    px = 0.0
+    py = 0.0
+    for k in range(CAP_SAMPLES + 1):
+        angle = 2.0 * math.pi * (k % CAP_SAMPLES) / CAP_SAMPLES
+        c, s = math.cos(angle), math.sin(angle)
+        X = C[0] + r * (c * a0 + s * b0)
+        Y = C[1] + r * (c * a1 + s * b1)
+        Z = C[2] + r * (c * a2 + s * b2)
+        if Z <= 1e-6:
+            return np.nan
+        qx, qy = X / Z, Y / Z
+        if k > 0:
+            # distance from (x, y) to the segment (px, py)-(qx, qy)
+            ex, ey = qx - px, qy - py
+            den = ex * ex + ey * ey
+            t = ((x - px) * ex + (y - py) * ey) / den if den > 0.0 else 0.0
+            t = min(max(t, 0.0), 1.0)
+            dx, dy = px + t * ex - x, py + t * ey - y
+            dist = math.sqrt(dx * dx + dy * dy)
+            if dist < best:
+                best = dist
+        px, py = qx, qy
+    return best
+
+
+@numba.njit(cache=True, nogil=True)
 def _residual_of(kind, C, D, r, x, y, extra):
     if kind == 0:
         return _edge_residual(C, D, r, x, y, extra)
+    if kind == 2:
+        return _cap_residual(C, D, r, x, y)
     return _end_residual(C, D, r, x, y, extra)
 
 
@@ -359,7 +409,9 @@ def _smoothness(count: int) -> np.ndarray:
 def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.ndarray, radius_prior: np.ndarray,
              radius_sigma: np.ndarray, *, focal_px: float, baseline_m: float, cap: float = 1.0,
              control_points: int = CONTROL_POINTS, base_prior: tuple[np.ndarray, np.ndarray] | None = None,
-             initial_control: np.ndarray | None = None) -> TubeFit | None:
+             initial_control: np.ndarray | None = None,
+             tip_outline: dict[int, np.ndarray] | None = None, initial_radii: np.ndarray | None = None,
+             iterations: int = ITERATIONS, _staged: bool = False) -> TubeFit | None:
     """Fit the tube to the edges of both images.
 
     Args:
@@ -378,10 +430,26 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
             earlier frames (rectified left frame), or None. The mount is rigid: the base's first
             visible point and the arm's direction there stay put while the arm bends.
         initial_control: (control_points, 3) control points to start from (the previous frame's fit).
+        tip_outline: image (0 left, 1 right) -> (K, 2) sub-pixel points of the silhouette's outline
+            around the tip (normalised); where given, they replace that image's single tip end point
+            in a second stage, started from the fit with the end point (an outline is attributed to
+            the nearest of the rim and the sides: from a tip far off, to the wrong one).
+        initial_radii: radii to start from (default: the prior).
+        iterations: Gauss-Newton iterations at most.
 
     Returns:
         The fit, or None when it cannot be set up (too few edges, degenerate initial curve).
     """
+    if not _staged and tip_outline and any(len(v) >= MIN_CAP_POINTS for v in tip_outline.values()):
+        first = fit_tube(edges, ends, initial_points, radius_prior, radius_sigma, focal_px=focal_px,
+                         baseline_m=baseline_m, cap=cap, control_points=control_points, base_prior=base_prior,
+                         initial_control=initial_control, initial_radii=initial_radii, iterations=iterations)
+        if first is None:
+            return None
+        return fit_tube(edges, ends, initial_points, radius_prior, radius_sigma, focal_px=focal_px,
+                        baseline_m=baseline_m, cap=cap, control_points=control_points, base_prior=base_prior,
+                        initial_control=first.control, tip_outline={k: v for k, v in tip_outline.items()},
+                        initial_radii=first.radius_bins, iterations=OUTLINE_ITERATIONS, _staged=True)
     if initial_control is not None:
         control = np.array(initial_control, np.float64)
         knots = clamped_knots(len(control))
@@ -391,7 +459,7 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
         knots, control = fit_control_points(initial_points, control_points)
     if len(edges.side) < 12:
         return None
-    radii = np.asarray(radius_prior, np.float64).copy()
+    radii = np.asarray(radius_prior if initial_radii is None else initial_radii, np.float64).copy()
     count = len(control)
     # Observations: edges, then the ends (base: no overshoot; tip: the cap's).
     kinds = [np.zeros(len(edges.side), np.int64)]
@@ -399,11 +467,22 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
     xs, ys = [edges.xy[:, 0]], [edges.xy[:, 1]]
     sigmas = [EDGE_SIGMA_PX / np.maximum(edges.weight, 1e-3)]
     end_us, end_extra = [], []
+    tip_outline = tip_outline or {}
     for name, u_end, extra in (("base", 0.0, -cap), ("tip", 1.0, cap)):  # overshoot beyond each end
-        # The left image's end says where along the axis the tube ends. The right image's would add
-        # a disparity, but a cap's outline is not the same point seen from two places, and its bias
-        # bent the last span towards the camera (c-bend scene: 12 mm at the tip with both, 5 with one).
         for side in END_SIDES:
+            outline = tip_outline.get(side)
+            if name == "tip" and cap and outline is not None and len(outline) >= MIN_CAP_POINTS:
+                # The whole outline of the flat end, not one point: its rim's ellipse seen from two
+                # places fixes where the tip is in depth too.
+                m = len(outline)
+                kinds.append(np.full(m, 2))
+                sides.append(np.full(m, side))
+                xs.append(outline[:, 0])
+                ys.append(outline[:, 1])
+                sigmas.append(np.full(m, CAP_SIGMA_PX))
+                end_us += [u_end] * m
+                end_extra += [0.0] * m
+                continue
             point = ends[name][side]
             if np.all(np.isfinite(point)):
                 kinds.append(np.array([1]))
@@ -452,7 +531,7 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
 
     damping = 1e-4
     cost, residuals, A, g = total(control, radii, True)
-    for iteration in range(ITERATIONS):
+    for iteration in range(iterations):
         converged = False
         while True:
             H = A + damping * np.diag(np.diag(A) + 1e-12)
