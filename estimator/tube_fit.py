@@ -283,29 +283,23 @@ def _normal_equations(knots, control, radii, bins, baseline, focal, kinds, sides
         cost += w * scaled * scaled
         if not want_system:
             continue
-        # finite-difference partials of the residual in C, D and r
+        # forward-difference partials of the residual in C, D and r (steps far below any length
+        # that matters, far above rounding: the residual is smooth on that scale)
         gC = np.empty(3)
         gD = np.empty(3)
         dn = math.sqrt(D[0] * D[0] + D[1] * D[1] + D[2] * D[2])
+        h = 1e-6
+        hd = 1e-6 * dn
         for c in range(3):
             for k in range(3):
                 Cp[k] = C[k]
                 Dp[k] = D[k]
-            h = 1e-6
             Cp[c] = C[c] + h
-            hi = _residual_of(kinds[i], Cp, D, r, xs[i], ys[i], extras[i])
-            Cp[c] = C[c] - h
-            lo = _residual_of(kinds[i], Cp, D, r, xs[i], ys[i], extras[i])
-            gC[c] = (hi - lo) / (2.0 * h) * focal
-            hd = 1e-6 * dn
+            gC[c] = (_residual_of(kinds[i], Cp, D, r, xs[i], ys[i], extras[i]) - res) / h * focal
             Dp[c] = D[c] + hd
-            hi = _residual_of(kinds[i], C, Dp, r, xs[i], ys[i], extras[i])
-            Dp[c] = D[c] - hd
-            lo = _residual_of(kinds[i], C, Dp, r, xs[i], ys[i], extras[i])
-            gD[c] = (hi - lo) / (2.0 * hd) * focal
+            gD[c] = (_residual_of(kinds[i], C, Dp, r, xs[i], ys[i], extras[i]) - res) / hd * focal
         hr = 1e-7
-        gr = (_residual_of(kinds[i], C, D, r + hr, xs[i], ys[i], extras[i])
-              - _residual_of(kinds[i], C, D, r - hr, xs[i], ys[i], extras[i])) / (2.0 * hr) * focal
+        gr = (_residual_of(kinds[i], C, D, r + hr, xs[i], ys[i], extras[i]) - res) / hr * focal
         n = 0
         for j in range(DEGREE + 1):
             for c in range(3):
