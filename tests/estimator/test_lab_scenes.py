@@ -155,3 +155,31 @@ def test_wood_behind_the_arm_is_never_taken_for_it(shelf_results):
     wrong = {name: round(s["max_mm"], 1) for name, (r, s) in shelf_results.items()
              if r.valid and s["max_mm"] > FALSE_VALID_MM}
     assert not wrong, {name: (round(s["max_mm"], 1) if r.valid else r.reason) for name, (r, s) in shelf_results.items()}
+
+
+def test_the_lab_renderer_puts_the_wall_at_its_disparity():
+    """On the ideal rectified rig a wall parallel to the image at 2 m is the left image moved by f B / Z = 42 px."""
+    from tests.scenes import paint_layers, rectified_calibration, wall_layer
+
+    calib = rectified_calibration()
+    w, h = calib.image_size
+    blank = np.zeros((h, w, 3))
+    left = paint_layers(calib, "left", [wall_layer("bricks", 2.0)], blank)
+    right = paint_layers(calib, "right", [wall_layer("bricks", 2.0)], blank)
+    shift = round(700.0 * 0.12 / 2.0)
+    differs = np.abs(right[:, : w - shift] - left[:, shift:]).max(axis=2) > 1e-6
+    assert differs.mean() < 0.01  # (pixels exactly on a mortar line's edge may round either way: 0.2 %)
+    assert np.abs(right - left).max() > 50  # and the wall has texture to match
+
+
+def test_a_bare_lab_scene_is_the_plain_scene():
+    """Without wall, distractors, light or noise, the layered renderer gives the plain one's image (the tube's
+    coverage composited over the backdrop) to within rounding."""
+    from tests.scenes import rectified_calibration, render_scene
+
+    calib = rectified_calibration()
+    points, joints = standard_shapes()["c_bend"]
+    plain = render_scene(calib, points, joints, noise_std=0.0)
+    bare = render_scene(calib, points, joints, lab=Lab(wall=None, distractors=False, noise_std=0.0))
+    for a, b in ((plain.left, bare.left), (plain.right, bare.right)):
+        assert np.abs(a.astype(int) - b.astype(int)).max() <= 2
