@@ -89,18 +89,21 @@ def _print_comparison(estimated: StereoCalibration, reference: StereoCalibration
 
 
 def _calibrate_sim(config, args, board: BoardSpec, n_views: int, out: Path) -> int:
-    if not config.sim.twin.is_file():
-        print(f"softarm calibrate: {config.path} [sim] twin: {config.sim.twin}: twin file not found", file=sys.stderr)
-        return 2
-    from twin import Twin
+    from bench.config import ConfigError
+    from bench.factory import make_devices
     from twin.checkerboard import board_poses, render_board_views
 
-    with Twin.from_config(config.sim.twin) as tw:
-        truth = tw.camera.calibration
-        poses = board_poses(tw.rig, board, n_views, seed=0)
+    try:
+        devices = make_devices(config, valves=False)
+    except ConfigError as e:  # names the config file and [sim] twin
+        print(f"softarm calibrate: {e}", file=sys.stderr)
+        return 2
+    with devices:
+        truth = devices.camera.calibration
+        poses = board_poses(devices.camera.rig, board, n_views, seed=0)
         print(f"rendering {n_views} board views ({board.inner_cols}x{board.inner_rows} inner corners, "
               f"{1000 * board.square_m:g} mm squares) through the twin's camera ...")
-        views = render_board_views(tw.camera.renderer, board, poses)
+        views = render_board_views(devices.camera.renderer, board, poses)
     corners = []
     for i, v in enumerate(views):
         corners.append(detect_pair(v.left, v.right, board))
@@ -120,18 +123,19 @@ def _calibrate_sim(config, args, board: BoardSpec, n_views: int, out: Path) -> i
 
 
 def _calibrate_rig(config, args, board: BoardSpec, n_views: int, out: Path) -> int:
-    from bench.factory import nominal_calibration, rig_calibration, rig_camera
+    from bench.factory import make_devices, nominal_calibration, rig_calibration
     from estimator.calibration import CalibrationFileError
     from hardware.errors import DeviceError, EndOfStreamError
 
     cam = dataclasses.replace(config.rig.camera, loop=False)  # a looped recording would repeat its views
+    config = dataclasses.replace(config, rig=dataclasses.replace(config.rig, camera=cam))
     try:
         reference = rig_calibration(cam, config.path)
     except CalibrationFileError as e:
         print(f"note: no usable calibration to compare with ({e}); opening the camera without one")
         reference = None
-    try:
-        camera = rig_camera(cam, config.path, reference or nominal_calibration(cam))
+    try:  # only the camera: nothing moves, the valve board is left alone
+        camera = make_devices(config, valves=False, calibration=reference or nominal_calibration(cam)).camera
     except (ValueError, DeviceError) as e:  # both name the config file and [rig.camera] source (or the key)
         print(f"softarm calibrate: {e}", file=sys.stderr)
         print("softarm calibrate: no camera, nothing calibrated; check the camera or point [rig.camera] source at "

@@ -1,5 +1,10 @@
 """One flag, one factory: ``make_devices(config)`` returns the twin's devices or the rig's.
 
+The devices carry their backend's differences (``bench.devices``): the twin comes with a clock that
+advances its physics, its exact truth and an archive that keeps its frames as noise-free renders;
+the rig with the wall clock and its pressure thread, a depth folder when ``[rig.depth]`` names one,
+and an archive that keeps the frames as captured. Everything above the factory is backend-blind.
+
 Each branch imports its own drivers, so a rig run never loads MuJoCo, pyrender or the twin,
 and a simulated run never imports pyserial or opens a port. Everything that can fail without
 moving anything (the calibration file, the camera, the board's answer) is checked before the
@@ -10,51 +15,26 @@ device is reported with the config file and the key that named it, e.g.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from bench.config import BenchConfig, CameraConfig, ConfigError, RigConfig, SimConfig, ValvesConfig
+from bench.devices import DepthFolder, Devices, FrameArchive, RealClock, TwinArchive, TwinClock, TwinTruth
 from estimator import CalibrationFileError, StereoCalibration
 from hardware.errors import DeviceError
-from hardware.interfaces import StereoCamera, ValveBank
+from hardware.interfaces import ValveBank
 
 
-@dataclass
-class Devices:
-    """The connected camera and valves of one backend; ``close()`` vents, then releases everything.
+def make_devices(config: BenchConfig, *, valves: bool = True,
+                 calibration: StereoCalibration | None = None) -> Devices:
+    """Open the devices of ``config.backend`` ("sim" or "rig") with what the capture loop needs besides:
+    the clock, the truth and the archive (``bench.devices``).
 
-    Attributes:
-        camera: the stereo camera (connected).
-        valves: the valve bank (connected, vented).
-        twin: the ``twin.Twin`` in simulation (ground truth lives there), None on the rig.
-    """
-
-    camera: StereoCamera
-    valves: ValveBank
-    twin: Any = None
-
-    def close(self) -> None:
-        """Vent and close the valves, then close the camera and the twin, even if one step fails."""
-        try:
-            self.valves.close()
-        finally:
-            try:
-                self.camera.close()
-            finally:
-                close_twin = getattr(self.twin, "close", None)
-                if close_twin is not None:
-                    close_twin()
-
-    def __enter__(self) -> Devices:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-
-def make_devices(config: BenchConfig) -> Devices:
-    """Open the devices of ``config.backend`` ("sim" or "rig").
+    Args:
+        config: the bench config.
+        valves: open the valves too; False where nothing moves (``softarm calibrate``): the rig's
+            valve board is then left alone (``Devices.valves`` is None).
+        calibration: the rig only: open the camera with this calibration instead of the configured
+            one (a stand-in when that one is missing, to calibrate the camera).
 
     Raises:
         ConfigError: the twin's file (``[sim] twin``) does not exist, or the rig has no ``[rig.valves]``.
@@ -64,9 +44,10 @@ def make_devices(config: BenchConfig) -> Devices:
             camera refuses (a source that does not exist, ...).
     """
     if config.backend == "rig":
-        return _make_rig(config.rig, config.path)
+        return _make_rig(config.rig, config.path, valves=valves, calibration=calibration)
     if config.backend == "sim":
-        return _make_sim(config.sim, config.path)
+        return _make_sim(config.sim, config.path, depth=config.recording.depth,
+                         noise_free=config.recording.lossless_frames)
     raise ValueError(f"backend: expected 'sim' or 'rig', got {config.backend!r}")
 
 
@@ -156,29 +137,33 @@ def serial_valves(valves: ValvesConfig) -> ValveBank:
                            reply_timeout_s=valves.reply_timeout_s)
 
 
-def _make_rig(rig: RigConfig, config_path: Path) -> Devices:
-    if rig.valves is None:
+def _make_rig(rig: RigConfig, config_path: Path, *, valves: bool,
+              calibration: StereoCalibration | None) -> Devices:
+    if valves and rig.valves is None:
         raise ConfigError(f"{config_path} [rig.valves]: the rig backend drives the valve board; add a [rig.valves] "
                           "section with its port (only `softarm calibrate` works without one)")
     cam = rig.camera
-    calibration = rig_calibration(cam, config_path)
-    valves = serial_valves(rig.valves)
+    calibration = calibration if calibration is not None else rig_calibration(cam, config_path)
+    depth = None if rig.depth is None else DepthFolder(rig.depth.source, rig.depth.scale_m)
+    bank = serial_valves(rig.valves) if valves else None
     camera = rig_camera(cam, config_path, calibration)
     try:
-        valves.connect()
+        if bank is not None:
+            bank.connect()
     except BaseException:
         camera.close()
         raise
-    return Devices(camera, valves, None)
+    return Devices(camera, bank, RealClock(), depth, FrameArchive())
 
 
-def _make_sim(sim: SimConfig, config_path: Path) -> Devices:
+def _make_sim(sim: SimConfig, config_path: Path, *, depth: bool, noise_free: bool) -> Devices:
     if not Path(sim.twin).is_file():
         raise ConfigError(f"{config_path} [sim] twin: {sim.twin}: twin file not found")
     from twin import Twin
 
     twin = Twin.from_config(sim.twin)
-    devices = Devices(twin.camera, twin.valves, twin)
+    devices = Devices(twin.camera, twin.valves, TwinClock(twin), TwinTruth(twin),
+                      TwinArchive(twin.camera, depth, noise_free), twin, grab_name="render")
     try:
         for device in (devices.camera, devices.valves):
             if not device.is_connected:

@@ -6,11 +6,21 @@ Layout (every file readable by a person; ``load_run`` reads it back)::
       config.json        the resolved configuration, the schedule, the estimator settings, argv
       bench.toml         a copy of the config file the run was started with
       calibration.toml   the camera calibration the frames were estimated with
-      frames.jsonl       one JSON object per frame, appended and flushed as the run goes
-      frames/000042_left.png, 000042_right.png   raw stereo frames (lossless PNG, or JPEG)
+      frames.jsonl       one JSON object per frame (``bench.frame_record.FrameRecord``), flushed as the run goes
+      frames/000042_left.png, 000042_right.png   rig: the raw stereo frames (lossless PNG, or JPEG)
+      frames/background_left.png, ..._right.png  sim: the noise-free static scene, once per run
+      frames/000042_left.png, 000042_right.png   sim: the frame's noise-free render, as its difference
+                                                 from the background, cropped to where it differs
       frames/000042_depth.png                    sim: left depth, uint16 in 0.1 mm (0 = none)
       summary.json       written at the end (a killed run has none: ``load_run`` recomputes it)
       report/            written by ``softarm report``
+
+The twin's frames are exact functions of the noise-free render and the noise seed: the sensor
+noise of frame k is drawn from (seed, k) alone (``twin.sensor.frame_generator``). So a twin run
+stores the noise-free images (they compress: about 0.1 MB per frame where the noisy pair took
+2.2 MB) with the seed and the camera effects (``config.json`` ``sensor``), and ``Run.image``
+draws the same noise again: the images a replay or the report sees are the ones the estimator
+saw, bit for bit.
 
 ``config.json`` and ``calibration.toml`` are written before ``frames.jsonl`` is created (pass
 them to ``RunWriter``), so every folder holding a ``frames.jsonl`` can be loaded, even one killed
@@ -19,7 +29,7 @@ renamed), its line in ``frames.jsonl`` last, by one background thread; ``RunWrit
 waits for the previous frame to be on disk before handing over the next, so at any moment at
 most one frame is in flight: a SIGKILL loses at most the frame being written, and every line in
 ``frames.jsonl`` has its images. A line cut short by the kill is skipped by the loader, and so is
-any line that is not a frame record (``bench.record_schema``) or repeats an index; ``Run.skipped``
+any line that is not a frame record (``bench.frame_record``) or repeats an index; ``Run.skipped``
 names each with its line number and why, and a ``summary.json`` that disagrees with the frames
 read (or is not a JSON object) is recomputed from them.
 """
@@ -40,7 +50,7 @@ import cv2
 import numpy as np
 
 from bench.config import RecordingConfig
-from bench.record_schema import record_problem
+from bench.frame_record import FrameRecord, RecordError
 from bench.scoring import DEPTH_UNIT_M, dequantize_depth, summarize
 from estimator import StereoCalibration
 
@@ -49,25 +59,33 @@ SUMMARY_FILE = "summary.json"
 CONFIG_FILE = "config.json"
 CALIBRATION_FILE = "calibration.toml"
 FRAMES_DIR = "frames"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: typed frame records, the twin's noise-free images (1 still reads)
+BACKGROUND = "background"
 _PNG_STRATEGIES = {"huffman": cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY, "rle": cv2.IMWRITE_PNG_STRATEGY_RLE,
                    "default": cv2.IMWRITE_PNG_STRATEGY_DEFAULT}
 
 
 # What a recorded frame costs on disk, for the estimate printed (and, above 2 GB, confirmed) before a run.
-# Bytes per byte of raw BGR image, measured on the twin's noisy 1280x720 frames (2026-12-01, OpenCV 5.0):
-# PNG at levels 1-9 with the Huffman-only or RLE strategy 0.385-0.387, the default strategy 0.43-0.48,
-# level 0 (stored) 1.0; JPEG at quality 50: 0.006, 75: 0.007, 95: 0.04, 100: 0.17 (interpolated between).
+# Rig frames, bytes per byte of raw BGR image, measured on noisy 1280x720 camera frames (2026-12-01,
+# OpenCV 5.0): PNG at levels 1-9 with the Huffman-only or RLE strategy 0.385-0.387, the default strategy
+# 0.43-0.48, level 0 (stored) 1.0; JPEG at quality 50: 0.006, 75: 0.007, 95: 0.04, 100: 0.17 (interpolated).
 # A real camera's frames compress differently (less noise, more texture): the figure is an estimate.
 _PNG_RATIO = {"huffman": 0.39, "rle": 0.39, "default": 0.48}
 _JPEG_RATIO = ((0, 0.006), (50, 0.006), (75, 0.007), (95, 0.04), (100, 0.17))
-# The twin's left depth (16-bit PNG, the arm on an empty background): 12-25 KB at 1280x720.
+# The twin's frames: the noise-free render's difference from the static scene, cropped to where it differs,
+# as PNG (RLE), bytes per pixel of one eye; measured on the paper's ramp (2026-12-02): 12.6 kB per eye on the
+# clean scene, 19 kB on the lab scene (its textured wall shows through the arm's blur and edges). The
+# left depth map the same way: 11 kB. The backgrounds, once per run: 8 kB clean, 1.4 MB lab.
+_TWIN_BYTES_PER_PIXEL = {"clean": 0.014, "textured": 0.021}
+_TWIN_DEPTH_BYTES_PER_PIXEL = 0.012
+# The left depth kept whole (a rig's, or a twin without a static scene): 12-25 kB on an empty background.
 _DEPTH_BYTES_PER_PIXEL = 0.03
-# One frames.jsonl line: about 9 KB on the twin (the 100-point backbone included); the paper mode adds ~4 KB.
+# One frames.jsonl line: about 9 kB on the twin (the 200-point backbone included); the paper mode adds ~5 kB.
 _RECORD_BYTES, _COMPARE_RECORD_BYTES = 10_000, 5_000
 
 
-def frame_bytes(recording: RecordingConfig, image_size: tuple[int, int], *, depth: bool, compare: bool) -> float:
+def frame_bytes(recording: RecordingConfig, image_size: tuple[int, int], *, depth: bool, compare: bool,
+                noise_free: bool = False, textured: bool = False) -> float:
     """Expected bytes one recorded frame takes: both eyes as the recording settings encode them, the
     depth map when one is kept, and the frame's line in frames.jsonl.
 
@@ -76,19 +94,24 @@ def frame_bytes(recording: RecordingConfig, image_size: tuple[int, int], *, dept
         image_size: (width, height) of one eye, pixels.
         depth: the twin's left depth map is kept (``[recording] depth`` on the sim backend).
         compare: the paper mode's estimate is recorded too (``--compare``).
+        noise_free: the twin's frames, stored as noise-free differences from the static scene.
+        textured: the twin renders a scene with a backdrop (its depth map is not empty).
     """
     width, height = image_size
     raw = 3.0 * width * height
-    if not recording.lossless_frames:
+    scene = "textured" if textured else "clean"
+    if noise_free:
+        images = 2 * _TWIN_BYTES_PER_PIXEL[scene] * width * height
+    elif not recording.lossless_frames:
         quality, ratios = recording.jpeg_quality, _JPEG_RATIO
-        ratio = float(np.interp(quality, [q for q, _ in ratios], [r for _, r in ratios]))
+        images = 2 * raw * float(np.interp(quality, [q for q, _ in ratios], [r for _, r in ratios]))
     elif recording.png_compression == 0:
-        ratio = 1.0
+        images = 2 * raw
     else:
-        ratio = _PNG_RATIO[recording.png_strategy]
-    total = 2 * raw * ratio + _RECORD_BYTES + (_COMPARE_RECORD_BYTES if compare else 0)
+        images = 2 * raw * _PNG_RATIO[recording.png_strategy]
+    total = images + _RECORD_BYTES + (_COMPARE_RECORD_BYTES if compare else 0)
     if depth:
-        total += _DEPTH_BYTES_PER_PIXEL * width * height
+        total += (_TWIN_DEPTH_BYTES_PER_PIXEL if noise_free else _DEPTH_BYTES_PER_PIXEL) * width * height
     return total
 
 
@@ -222,6 +245,7 @@ class RunWriter:
         self.frames_written = 0
         self.write_ms_total = 0.0
         self.wait_ms_total = 0.0
+        self._backgrounds: dict[str, tuple[str, np.ndarray]] = {}
 
     # --- start ----------------------------------------------------------------------------
 
@@ -236,23 +260,41 @@ class RunWriter:
 
     # --- frames ---------------------------------------------------------------------------
 
-    def submit(self, record: dict, left: np.ndarray | None, right: np.ndarray | None,
-               depth_units: np.ndarray | None = None) -> float:
+    def write_backgrounds(self, images: Mapping[str, np.ndarray]) -> None:
+        """The twin's noise-free static scene, once per run (``frames/background_<side>.png``, and its left
+        depth ``background_depth.png``): the frames submitted with ``noise`` (and their depth maps) are
+        stored as their difference from it."""
+        for side, image in images.items():
+            name = f"{FRAMES_DIR}/{BACKGROUND}_{side}.png"
+            _write_image(self.folder / name, image, ".png", _DIFFERENCE_PNG)
+            self._backgrounds[side] = (name, np.ascontiguousarray(image))
+
+    def submit(self, record: FrameRecord | Mapping, left: np.ndarray | None = None, right: np.ndarray | None = None,
+               depth_units: np.ndarray | None = None, noise: Mapping[str, int] | None = None) -> float:
         """Hand one frame to the writer thread, after the previous frame is on disk.
 
         Args:
-            record: the frame's JSON record (``index`` required); image paths are added to it.
-            left, right: raw BGR images, or None to store none.
+            record: the frame's record (or its JSON object); the files written are added to it.
+            left, right: BGR images to store, or None to store none: the frames as captured, or with
+                ``noise`` the twin's noise-free images.
             depth_units: uint16 left depth (``bench.scoring.quantize_depth``), or None.
+            noise: {"seed", "index"} the twin drew the frame's sensor noise from: ``left``/``right``
+                are then the noise-free images, stored (losslessly) as their difference from the
+                backgrounds (``write_backgrounds``), and ``Run.image`` draws the same noise again.
 
         Returns:
             Milliseconds spent waiting for the previous frame.
 
         Raises:
             OSError: writing the previous frame failed (disk full, ...).
+            RecordError: ``record`` is a JSON object that is not a frame record.
+            ValueError: ``noise`` without the backgrounds written first.
         """
+        record = FrameRecord.coerce(record)
+        if noise is not None and not {"left", "right"} <= set(self._backgrounds):
+            raise ValueError("noise: the twin's frames need write_backgrounds() first")
         waited = self.flush()
-        self._pending = self._pool.submit(self._write_frame, record, left, right, depth_units)
+        self._pending = self._pool.submit(self._write_frame, record, left, right, depth_units, noise)
         return waited
 
     def flush(self) -> float:
@@ -265,27 +307,42 @@ class RunWriter:
         self.wait_ms_total += waited
         return waited
 
-    def _write_frame(self, record: dict, left, right, depth_units) -> None:
+    def _write_frame(self, record: FrameRecord, left, right, depth_units, noise) -> None:
         start = time.perf_counter()
-        index = int(record["index"])
-        images = {}
+        index = int(record.index)
+        images, clean = {}, None
         if left is not None and right is not None:
-            ext = ".png" if self.recording.lossless_frames else ".jpg"
+            if noise is not None:
+                clean = {"seed": int(noise["seed"]), "index": int(noise["index"]),
+                         "background": {side: self._backgrounds[side][0] for side in ("left", "right")},
+                         "origin": {}}
+            ext = ".png" if self.recording.lossless_frames or noise is not None else ".jpg"
             params = ([cv2.IMWRITE_PNG_COMPRESSION, self.recording.png_compression,
                        cv2.IMWRITE_PNG_STRATEGY, _PNG_STRATEGIES[self.recording.png_strategy]] if ext == ".png"
                       else [cv2.IMWRITE_JPEG_QUALITY, self.recording.jpeg_quality])
             for side, image in (("left", left), ("right", right)):
                 name = f"{FRAMES_DIR}/{index:06d}_{side}{ext}"
-                _write_image(self.folder / name, image, ext, params)
+                if clean is not None:
+                    patch, origin = difference_patch(image, self._backgrounds[side][1])
+                    _write_image(self.folder / name, patch, ext, _DIFFERENCE_PNG)
+                    clean["origin"][side] = list(origin)
+                else:
+                    _write_image(self.folder / name, image, ext, params)
                 images[side] = name
+        depth = None
         if depth_units is not None:
             name = f"{FRAMES_DIR}/{index:06d}_depth.png"
-            _write_image(self.folder / name, depth_units, ".png", [cv2.IMWRITE_PNG_COMPRESSION, 1])
-            record["depth"] = {"path": name, "unit_m": DEPTH_UNIT_M}
-        if images:
-            record["images"] = images
-        record["write_ms"] = round((time.perf_counter() - start) * 1e3, 3)
-        self._lines.write(json.dumps(jsonable(record), separators=(",", ":")) + "\n")
+            depth = {"path": name, "unit_m": DEPTH_UNIT_M}
+            if "depth" in self._backgrounds:
+                patch, origin = difference_patch(depth_units, self._backgrounds["depth"][1])
+                _write_image(self.folder / name, patch, ".png", _DIFFERENCE_PNG)
+                depth.update(background=self._backgrounds["depth"][0], origin=list(origin))
+            else:
+                _write_image(self.folder / name, depth_units, ".png", [cv2.IMWRITE_PNG_COMPRESSION, 1])
+        record = record.replace(images=images or record.images, clean=clean or record.clean,
+                                depth=depth or record.depth,
+                                write_ms=round((time.perf_counter() - start) * 1e3, 3))
+        self._lines.write(json.dumps(jsonable(record.to_json()), separators=(",", ":")) + "\n")
         self._lines.flush()
         self.frames_written += 1
         self.write_ms_total += (time.perf_counter() - start) * 1e3
@@ -305,6 +362,54 @@ class RunWriter:
         self._pool.shutdown(wait=True)
         if not self._lines.closed:
             self._lines.close()
+
+
+# The twin's differences from the static scene are mostly zero: run-length matching packs them best
+# (19 kB for a 1280x720 eye against 360 kB with Huffman only), level 1 keeps it fast.
+_DIFFERENCE_PNG = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE]
+
+
+def difference_patch(image: np.ndarray, background: np.ndarray) -> tuple[np.ndarray, tuple[int, int]]:
+    """``image - background`` (modulo 2^8 or 2^16: lossless) cropped to where they differ.
+
+    Args:
+        image, background: uint8 images (H, W, 3), or uint16 depth maps (H, W), of one shape.
+
+    Returns:
+        (the patch, its (x, y) origin in the image); a 1x1 zero patch at (0, 0) where nothing differs.
+    """
+    if image.shape != background.shape or image.dtype != background.dtype or image.dtype not in (np.uint8,
+                                                                                                 np.uint16):
+        raise ValueError(f"image: expected {background.dtype} {background.shape} like the background, got "
+                         f"{image.dtype} {image.shape}")
+    difference = np.subtract(image, background, dtype=image.dtype)  # wraps: (background + d) mod 2^n == image
+    h = difference.shape[0]
+    rows = np.flatnonzero(difference.reshape(h, -1).any(axis=1))
+    if not len(rows):
+        return np.zeros((1, 1) + difference.shape[2:], difference.dtype), (0, 0)
+    y0, y1 = int(rows[0]), int(rows[-1]) + 1
+    band = difference[y0:y1]
+    cols = np.flatnonzero(band.any(axis=(0, 2)) if band.ndim == 3 else band.any(axis=0))
+    x0, x1 = int(cols[0]), int(cols[-1]) + 1
+    return np.ascontiguousarray(band[:, x0:x1]), (x0, y0)
+
+
+def add_patch(background: np.ndarray, patch: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
+    """The image ``difference_patch`` took apart: ``background`` plus ``patch`` at ``origin`` (modulo 256).
+
+    Raises:
+        ValueError: the patch does not fit the background at its origin.
+    """
+    x0, y0 = (int(v) for v in origin)
+    h, w = patch.shape[:2]
+    if patch.dtype != background.dtype or patch.shape[2:] != background.shape[2:] or y0 + h > background.shape[0] or \
+            x0 + w > background.shape[1]:
+        raise ValueError(f"a {w}x{h} patch at ({x0}, {y0}) does not fit a {background.shape[1]}x{background.shape[0]} "
+                         "background")
+    image = background.copy()
+    region = image[y0:y0 + h, x0:x0 + w]
+    np.add(region, patch, out=region, dtype=image.dtype)  # wraps, undoing the subtraction
+    return image
 
 
 def _write_image(path: Path, image: np.ndarray, ext: str, params: list[int]) -> None:
@@ -337,8 +442,8 @@ class Run:
     Attributes:
         path: the folder.
         config: ``config.json`` (the resolved configuration, schedule, estimator settings).
-        frames: frame records in order (``frames.jsonl``), each checked against the record schema
-            (``bench.record_schema``); the first of a repeated index is kept.
+        frames: frame records in order (``frames.jsonl``), each read by ``FrameRecord.from_json``
+            (a line that is not a record is skipped and named); the first of a repeated index is kept.
         summary: ``summary.json``, recomputed from the frames where the run was killed (none), it
             is unreadable or not an object, or it disagrees with the frames read.
         complete: whether a readable ``summary.json`` was there (the run finished, or stopped cleanly).
@@ -349,11 +454,12 @@ class Run:
 
     path: Path
     config: dict
-    frames: list[dict]
+    frames: list[FrameRecord]
     summary: dict
     complete: bool
     skipped: list[SkippedLine] = dataclasses.field(default_factory=list)
     summary_note: str | None = None
+    _cache: dict = dataclasses.field(default_factory=dict, repr=False, compare=False)
 
     @property
     def skipped_lines(self) -> int:
@@ -366,7 +472,7 @@ class Run:
 
     @property
     def has_ground_truth(self) -> bool:
-        return any(f.get("gt_m") for f in self.frames)
+        return any(f.gt_m is not None and len(f.gt_m) for f in self.frames)
 
     @property
     def calibration(self) -> StereoCalibration:
@@ -390,37 +496,113 @@ class Run:
     def report_options(self) -> dict:
         return self.section("bench", "report")
 
-    def image(self, record: Mapping, side: str) -> np.ndarray | None:
-        """The raw BGR image of one eye of a frame, or None when it was not recorded (or is missing)."""
-        name = record.get("images", {}).get(side)
+    def image(self, record: FrameRecord, side: str) -> np.ndarray | None:
+        """The raw BGR image of one eye of a frame as the estimator saw it, or None when it was not
+        recorded (or its file is missing or unreadable).
+
+        On the twin the stored noise-free image is put back on its background and its sensor noise
+        drawn again (``record.clean``): the result is the captured image, bit for bit.
+
+        Raises:
+            RunFolderError: the run's recorded camera effects (``config.json`` sensor) are unusable.
+        """
+        name = (record.images or {}).get(side)
         if not name:
             return None
-        image = cv2.imread(str(self.path / name), cv2.IMREAD_COLOR)
-        return image
-
-    def lossless(self, record: Mapping) -> bool:
-        return all(str(n).endswith(".png") for n in record.get("images", {}).values())
-
-    def depth(self, record: Mapping) -> np.ndarray | None:
-        """The frame's left depth map in metres (inf: none), or None when not recorded."""
-        info = record.get("depth")
-        if not info:
+        flags = cv2.IMREAD_UNCHANGED if record.clean else cv2.IMREAD_COLOR
+        image = cv2.imread(str(self.path / name), flags)
+        if image is None or not record.clean:
+            return image
+        background = self._background(record.clean["background"].get(side))
+        origin = record.clean.get("origin", {}).get(side, (0, 0))
+        if background is None or image.ndim != background.ndim:
             return None
+        try:
+            clean = add_patch(background, image, origin)
+        except ValueError:
+            return None
+        return self._noise(side).noisy(clean, _frame_generator(record.clean["seed"], record.clean["index"], side))
+
+    def clean_image(self, record: FrameRecord, side: str) -> np.ndarray | None:
+        """The twin's noise-free image of one eye (before the sensor noise), or None (a rig frame, or missing)."""
+        name = (record.images or {}).get(side)
+        if not name or not record.clean:
+            return None
+        patch = cv2.imread(str(self.path / name), cv2.IMREAD_UNCHANGED)
+        background = self._background(record.clean["background"].get(side))
+        if patch is None or background is None:
+            return None
+        return add_patch(background, patch, record.clean.get("origin", {}).get(side, (0, 0)))
+
+    def lossless(self, record: FrameRecord) -> bool:
+        return all(str(n).endswith(".png") for n in (record.images or {}).values())
+
+    def depth_units(self, record: FrameRecord) -> tuple[np.ndarray | None, float | None]:
+        """The frame's stored left depth as (uint16 units, metres per unit), or (None, None)."""
+        info = record.depth
+        if not info:
+            return None, None
         units = cv2.imread(str(self.path / info["path"]), cv2.IMREAD_UNCHANGED)
-        return None if units is None else dequantize_depth(units, info.get("unit_m", DEPTH_UNIT_M))
+        if units is None:
+            return None, None
+        if info.get("background"):  # the twin's: the difference from the static scene's depth
+            background = self._background(info["background"])
+            if background is None:
+                return None, None
+            try:
+                units = add_patch(background, units, info.get("origin", (0, 0)))
+            except ValueError:
+                return None, None
+        return units, float(info.get("unit_m", DEPTH_UNIT_M))
+
+    def depth(self, record: FrameRecord) -> np.ndarray | None:
+        """The frame's left depth map in metres (inf: none), or None when not recorded."""
+        units, unit_m = self.depth_units(record)
+        return None if units is None else dequantize_depth(units, unit_m)
+
+    def _background(self, name: str | None) -> np.ndarray | None:
+        if not name:
+            return None
+        key = ("background", name)
+        if key not in self._cache:
+            self._cache[key] = cv2.imread(str(self.path / name), cv2.IMREAD_UNCHANGED)
+        return self._cache[key]
+
+    def _noise(self, side: str):
+        """The twin's sensor model of one eye, from the run's recorded camera effects (``config.json`` sensor)."""
+        key = ("noise", side)
+        if key not in self._cache:
+            from twin.sensor import CameraEffects, SensorSimulator
+
+            recorded = self.config.get("sensor")
+            try:
+                effects = CameraEffects(**recorded)
+            except (TypeError, ValueError) as e:
+                raise RunFolderError(f"{self.path / CONFIG_FILE}: sensor: the twin's camera effects are unusable "
+                                     f"({e}); the frames cannot be made noisy again") from e
+            calibration = self.calibration
+            self._cache[key] = SensorSimulator(effects, calibration.K(side), calibration.image_size,
+                                               np.random.default_rng(0))
+        return self._cache[key]
 
 
-def read_frames(path: Path) -> tuple[list[dict], list[SkippedLine]]:
+def _frame_generator(seed: int, index: int, side: str) -> np.random.Generator:
+    from twin.sensor import frame_generator
+
+    return frame_generator(seed, index, side)
+
+
+def read_frames(path: Path) -> tuple[list[FrameRecord], list[SkippedLine]]:
     """Frame records of a ``frames.jsonl``; every line that is not one is skipped and named.
 
     A line is skipped when it is not JSON (the last one without its end of line: cut short by a
-    kill), when ``bench.record_schema.record_problem`` finds a missing key or a wrong type, or when
-    its index repeats an earlier record's (the first is kept). Blank lines are ignored.
+    kill), when ``FrameRecord.from_json`` finds a missing key or a wrong type, or when its index
+    repeats an earlier record's (the first is kept). Blank lines are ignored.
 
     Returns:
         (records in file order, skipped lines with why).
     """
-    records: list[dict] = []
+    records: list[FrameRecord] = []
     skipped: list[SkippedLine] = []
     first_line: dict[int, int] = {}
     with open(path, encoding="utf-8", errors="replace") as f:
@@ -436,11 +618,12 @@ def read_frames(path: Path) -> tuple[list[dict], list[SkippedLine]]:
             why = "cut short (no end of line: the run was killed while writing it)" if cut else f"not JSON ({e})"
             skipped.append(SkippedLine(number, why))
             continue
-        problem = record_problem(record)
-        if problem:
-            skipped.append(SkippedLine(number, f"not a frame record: {problem}"))
+        try:
+            record = FrameRecord.from_json(record)
+        except RecordError as e:
+            skipped.append(SkippedLine(number, f"not a frame record: {e}"))
             continue
-        index = record["index"]
+        index = record.index
         if index in first_line:
             skipped.append(SkippedLine(number, f"index {index} again (first on line {first_line[index]}); "
                                                "the first is kept"))
@@ -540,13 +723,15 @@ def _difference(key: str, stored: Any, fresh: Any) -> str:
     return key
 
 
-def summarize_run(frames: list[dict], config: Mapping, *, wall_s: float | None = None) -> dict:
-    """The ``summary.json`` of a run's frames: the main estimate, and the paper mode if compared."""
+def summarize_run(frames: list[FrameRecord] | list[Mapping], config: Mapping, *, wall_s: float | None = None) -> dict:
+    """The ``summary.json`` of a run's frames (records or their JSON objects): the main estimate, and the
+    paper mode if compared."""
+    frames = [FrameRecord.coerce(f) for f in frames]
     estimators = config.get("estimators")
     main = estimators.get("main") if isinstance(estimators, Mapping) else None
     main_mode = main.get("mode", "default") if isinstance(main, Mapping) else "default"
     summary = {"backend": config.get("backend"), "mode": main_mode,
                **summarize(frames, wall_s=wall_s)}
-    if any("paper" in f for f in frames):
+    if any(f.paper is not None for f in frames):
         summary["paper"] = summarize(frames, key="paper", wall_s=wall_s)
     return summary

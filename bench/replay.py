@@ -1,11 +1,13 @@
 """``softarm replay RUN``: re-run an estimator configuration on a recorded run's frames and score it again.
 
 The recorded raw frames are fed in order to one estimator (so its warm start behaves as in the
-run), each estimate is scored against the recorded ground truth (``gt_m``) and, where the run
-kept depth maps, against Q'; the result is a new run-like folder (``frames.jsonl``,
-``summary.json``, ``config.json``, the calibration) whose records point at the original frames,
-so ``softarm report`` works on it too. With the run's own configuration (no ``--mode`` or
-``--centerline``) and lossless frames the scores are those recorded: the pipeline is deterministic.
+run), each through the same frame path as the run (``bench.process.process``): scored against the
+recorded ground truth (``gt_m``) and, where the run kept depth maps, against Q'; the result is a
+new run-like folder (``frames.jsonl``, ``summary.json``, ``config.json``, the calibration) whose
+records point at the original frames, so ``softarm report`` works on it too. With the run's own
+configuration (no ``--mode`` or ``--centerline``) and lossless frames the estimates are those
+recorded, bit for bit: the pipeline is deterministic and the twin's frames are rebuilt exactly
+(their noise-free render with the same sensor noise drawn again, ``Run.image``).
 """
 
 from __future__ import annotations
@@ -16,10 +18,9 @@ import sys
 import time
 from pathlib import Path
 
-import cv2
-import numpy as np
-
 from bench.config import RecordingConfig
+from bench.frame_record import FrameRecord
+from bench.process import Capture, process
 from bench.recording import (
     CALIBRATION_FILE,
     EXIT_FAILED,
@@ -33,7 +34,7 @@ from bench.recording import (
     point_latest,
     summarize_run,
 )
-from bench.scoring import DEPTH_UNIT_M, summary_table
+from bench.scoring import summary_table
 from estimator import CenterlineEstimator, EstimatorConfig
 from hardware.interfaces import StereoFrame
 
@@ -102,9 +103,7 @@ def replay(run: Run, config: EstimatorConfig, out: Path, *, progress: bool = Fal
     Raises:
         RunFolderError: the run has no recorded frames to replay, or ``out`` already holds a run.
     """
-    from bench.run import _Capture, _process
-
-    usable = [r for r in run.frames if r.get("images")]
+    usable = [r for r in run.frames if r.images]
     if not usable:
         raise RunFolderError(f"{run.path}: no recorded images to replay (the run kept no frames)")
     lossy = sum(1 for r in usable if not run.lossless(r))
@@ -118,7 +117,7 @@ def replay(run: Run, config: EstimatorConfig, out: Path, *, progress: bool = Fal
     writer.write_config({**run.config, "replay_of": str(run.path.resolve()), "argv": list(sys.argv),
                          "estimators": {"main": config.as_dict()}})
     estimator = CenterlineEstimator(calibration, config)
-    records: list[dict] = []
+    records: list[FrameRecord] = []
     skipped = 0
     bar = None
     if progress:
@@ -132,19 +131,15 @@ def replay(run: Run, config: EstimatorConfig, out: Path, *, progress: bool = Fal
             if left is None or right is None:
                 skipped += 1
                 continue
-            depth_units, unit = _depth_units(run, original)
-            capture = _Capture(index=original["index"], t_s=original["t_s"],
-                               frame=StereoFrame(left, right, original.get("timestamp_s", original["t_s"]),
-                                                 original.get("camera_index", original["index"])),
-                               commanded_bar=original.get("commanded_bar", {}),
-                               chamber_bar=original.get("chamber_bar"), sim_time_s=original.get("sim_time_s"),
-                               gt_m=np.asarray(original["gt_m"]) if original.get("gt_m") else None,
-                               depth_units=depth_units, depth_unit_m=unit)
-            record = _process(capture, {"main": estimator}, calibration, _Totals())
-            record["images"] = {side: _relative(run.path / name, out) for side, name in original["images"].items()}
-            if original.get("depth"):
-                record["depth"] = {**original["depth"], "path": _relative(run.path / original["depth"]["path"], out)}
-            writer.submit(record, None, None)
+            depth_units, unit = run.depth_units(original)
+            capture = Capture(index=original.index, t_s=original.t_s,
+                              frame=StereoFrame(left, right, original.timestamp_s, original.camera_index),
+                              commanded_bar=original.commanded_bar, chamber_bar=original.chamber_bar,
+                              sim_time_s=original.sim_time_s, gt_m=original.gt_m, depth_units=depth_units,
+                              depth_unit_m=unit)
+            record = process(capture, {"main": estimator}, calibration)
+            record = record.replace(**_pointing_at(run, original, out))
+            writer.submit(record)
             records.append(record)
             if bar is not None:
                 bar.update(1)
@@ -159,19 +154,18 @@ def replay(run: Run, config: EstimatorConfig, out: Path, *, progress: bool = Fal
     return summary
 
 
-class _Totals(dict):
-    """Accepts the run loop's time bookkeeping and forgets it (a replay reports its own wall time)."""
-
-    def __missing__(self, key):
-        return 0.0
-
-
-def _depth_units(run: Run, record: dict) -> tuple[np.ndarray | None, float | None]:
-    info = record.get("depth")
-    if not info:
-        return None, None
-    units = cv2.imread(str(run.path / info["path"]), cv2.IMREAD_UNCHANGED)
-    return (None, None) if units is None else (units, info.get("unit_m", DEPTH_UNIT_M))
+def _pointing_at(run: Run, original: FrameRecord, out: Path) -> dict:
+    """The original frame's files, as paths relative to the replay's folder ``out``."""
+    changes: dict = {"images": {side: _relative(run.path / name, out) for side, name in original.images.items()}}
+    if original.clean:
+        changes["clean"] = {**original.clean, "background": {side: _relative(run.path / name, out)
+                                                           for side, name in original.clean["background"].items()}}
+    if original.depth:
+        depth = original.depth
+        changes["depth"] = {**depth, "path": _relative(run.path / depth["path"], out)}
+        if depth.get("background"):
+            changes["depth"]["background"] = _relative(run.path / depth["background"], out)
+    return changes
 
 
 def _relative(target: Path, folder: Path) -> str:

@@ -30,6 +30,8 @@ import cv2
 import numpy as np
 
 from bench.config import ConfigError, ReportConfig, build_section
+from bench.frame_record import EstimateRecord
+from bench.process import Capture, process
 from bench.recording import (
     CONFIG_FILE,
     EXIT_FAILED,
@@ -41,10 +43,11 @@ from bench.recording import (
     load_run,
     write_json,
 )
-from bench.scoring import PAPER, invalid_lines, pooled_rmse, score_fields, summary_table
+from bench.scoring import PAPER, dequantize_depth, invalid_lines, pooled_rmse, summary_table
 from estimator import CenterlineEstimator, EstimatorConfig
 from estimator.metrics import axis_depth_points, axis_rmse, depth_camera_points
 from estimator.segmentation import arm_mask
+from hardware.interfaces import StereoFrame
 
 REPORT_DIR = "report"
 _AXES = "xyz"
@@ -104,7 +107,7 @@ def write_report(run_dir: Path, *, progress: bool = False, options: Mapping | No
     say("re-running the paper mode with and without misalignment compensation (Fig 12)")
     compensation = compensation_study(run, int(opts["compensation_frames"]))
     if compensation:
-        write_json(out / "compensation.json", compensation)
+        write_json(out / "compensation.json", compensation_json(compensation))
     say("plots")
     for name, draw in (("fig12_axis_error.png", lambda p: _fig12(run, compensation, p)),
                        ("fig13_fps.png", lambda p: _fig13(run, p, compensation)),
@@ -155,18 +158,19 @@ def compensation_study(run: Run, max_frames: int) -> dict | None:
     "nearest_image" and "none", and the preset with the numpy SOM (Fig 13's paper speed).
 
     Frames are taken evenly over the run (at most ``max_frames``, lossless images only) and fed in
-    order to one estimator per variant, so the SOM warm-starts from the previous frame as in a run.
-    Each valid estimate also gets Table 2 the paper's way: its unsmoothed Q (the triangulated
-    nodes) against Q' at the left nodes, with the depth the depth camera sees (the tube's surface)
-    and with the exact axis's depth (twin only).
+    order to one estimator per variant, so the SOM warm-starts from the previous frame as in a run;
+    each goes through the run's own frame path (``bench.process.process``). Each valid estimate also
+    gets Table 2 the paper's way: its unsmoothed Q (the triangulated nodes) against Q' at the left
+    nodes, with the depth the depth camera sees (the tube's surface) and with the exact axis's depth
+    (twin only).
 
     Returns:
-        ``{"frames": [index, ...], "t_s": [...], <variant>: [fields...], "summary": {variant: {...}}}``,
-        or None when there is nothing to re-run.
+        ``{"frames": [index, ...], "t_s": [...], <variant>: [EstimateRecord, ...], "table2": {<variant>:
+        [dict | None, ...]}, "summary": {variant: {...}}}``, or None when there is nothing to re-run.
     """
     if max_frames <= 0:
         return None
-    candidates = [r for r in run.frames if r.get("images") and run.lossless(r)]
+    candidates = [r for r in run.frames if r.images and run.lossless(r)]
     if not candidates:
         return None
     picks = _evenly(candidates, max_frames)
@@ -177,69 +181,86 @@ def compensation_study(run: Run, max_frames: int) -> dict | None:
         for variant, overrides in _VARIANTS.items()}
     for estimator in estimators.values():  # compile outside the timing, then start cold as a run does
         estimator.warm_up()
-    out: dict = {"frames": [], "t_s": [], **{variant: [] for variant in _VARIANTS}}
+    out: dict = {"frames": [], "t_s": [], **{variant: [] for variant in _VARIANTS},
+                 "table2": {variant: [] for variant in _VARIANTS}}
     for record in picks:
         left, right = run.image(record, "left"), run.image(record, "right")
         if left is None or right is None:
             continue
-        depth = run.depth(record)
-        gt = np.asarray(record["gt_m"]) if record.get("gt_m") else None
-        out["frames"].append(record["index"])
-        out["t_s"].append(record["t_s"])
+        depth_units, unit_m = run.depth_units(record)
+        capture = Capture(index=record.index, t_s=record.t_s,
+                          frame=StereoFrame(left, right, record.timestamp_s, record.camera_index),
+                          commanded_bar=record.commanded_bar, gt_m=record.gt_m, depth_units=depth_units,
+                          depth_unit_m=unit_m)
+        depth = None if depth_units is None else dequantize_depth(depth_units, unit_m)
+        out["frames"].append(record.index)
+        out["t_s"].append(record.t_s)
         for variant, estimator in estimators.items():
-            result = estimator.estimate(left, right)
-            fields = {"valid": bool(result.valid), "reason": result.reason, "flags": list(result.flags),
-                      "misalignment_px": float(result.misalignment_px) if result.valid else None,
-                      "timings_ms": {"total": float(result.timings_ms.get("total", math.nan))}}
-            if result.valid:
-                fields.update(score_fields(result.points, result.left_uv, gt, depth, calibration))
-                fields.pop("qprime_m", None)
-                fields["table2"] = table2_fields(result, gt, depth, calibration)
-            out[variant].append(fields)
+            estimate = process(capture, {"main": estimator}, calibration).main
+            out[variant].append(estimate)
+            out["table2"][variant].append(table2_fields(estimate, record.gt_m, depth, calibration)
+                                          if estimate.valid else None)
     if not out["frames"]:
         return None
-    out["summary"] = {variant: _variant_summary(out[variant]) for variant in _VARIANTS}
+    out["summary"] = {variant: _variant_summary(out[variant], out["table2"][variant]) for variant in _VARIANTS}
     return out
 
 
-def table2_fields(result, gt_m: np.ndarray | None, depth_m: np.ndarray | None, calibration) -> dict:
+def compensation_json(compensation: dict) -> dict:
+    """``compensation.json``: per variant and frame what the figures use (the Q' points left out)."""
+    variants = {}
+    for variant in _VARIANTS:
+        rows = []
+        for estimate, table2 in zip(compensation[variant], compensation["table2"][variant], strict=True):
+            row = {"valid": estimate.valid, "reason": estimate.reason, "flags": list(estimate.flags),
+                   "misalignment_px": estimate.misalignment_px, "timings_ms": {"total": estimate.total_ms}}
+            if estimate.valid:
+                row.update({"errors": estimate.errors, "qprime": estimate.qprime, "table2": table2})
+            rows.append(row)
+        variants[variant] = rows
+    return {"frames": compensation["frames"], "t_s": compensation["t_s"], **variants,
+            "summary": compensation["summary"]}
+
+
+def table2_fields(estimate: EstimateRecord, gt_m: np.ndarray | None, depth_m: np.ndarray | None,
+                  calibration) -> dict:
     """Table 2 per frame, the paper's way: the unsmoothed Q against Q' at the left nodes.
 
     Returns:
         ``{"surface": {x_mm, y_mm, z_mm, count} | None, "axis": {...} | None}``: Q' with the depth
         map's depth (what a depth camera sees: the tube's surface), and with the exact axis's depth.
     """
-    q = result.points_unsmoothed if len(result.points_unsmoothed) else result.points
+    q = estimate.points_unsmoothed_m if len(estimate.points_unsmoothed_m) else estimate.points_m
     out: dict = {"surface": None, "axis": None}
     seen = np.ones(len(q), dtype=bool)
     if depth_m is not None:
-        surface = depth_camera_points(result.left_uv, depth_m, calibration)
+        surface = depth_camera_points(estimate.left_uv, depth_m, calibration)
         seen = np.all(np.isfinite(surface), axis=1)  # nodes off the arm have no depth: both columns skip them
         out["surface"] = axis_rmse(q, surface)
     if gt_m is not None:
-        axis = axis_depth_points(result.left_uv, gt_m, calibration)
+        axis = axis_depth_points(estimate.left_uv, gt_m, calibration)
         out["axis"] = axis_rmse(q, np.where(seen[:, None], axis, np.nan))
     return out
 
 
-def _variant_summary(fields: Sequence[Mapping]) -> dict:
-    valid = [f for f in fields if f["valid"]]
-    exact = [f["errors"] for f in valid if f.get("errors")]
-    qprime = [f["qprime"] for f in valid if f.get("qprime")]
-    totals = [f["timings_ms"]["total"] for f in fields if np.isfinite(f["timings_ms"]["total"])]
-    table2 = {kind: [t[kind] for t in (f.get("table2") or {} for f in valid) if t.get(kind) and t[kind]["count"]]
+def _variant_summary(estimates: Sequence[EstimateRecord], table2s: Sequence[dict | None]) -> dict:
+    valid = [e for e in estimates if e.valid]
+    exact = [e.errors for e in valid if e.errors]
+    qprime = [e.qprime for e in valid if e.qprime]
+    totals = [e.total_ms for e in estimates if np.isfinite(e.total_ms)]
+    table2 = {kind: [t[kind] for t in table2s if t and t.get(kind) and t[kind]["count"]]
               for kind in ("surface", "axis")}
     return {
-        "frames": len(fields), "valid_frames": len(valid),
-        "flagged": {check: sum(check in f.get("flags", ()) for f in fields) for check in CHECKS},
+        "frames": len(estimates), "valid_frames": len(valid),
+        "flagged": {check: sum(check in e.flags for e in estimates) for check in CHECKS},
         "rmse_xyz_mm": [pooled_rmse(e[f"rmse_{a}_mm"] for e in exact) for a in _AXES],
         "rmse_mm": pooled_rmse(e["rmse_mm"] for e in exact),
         "median_rmse_mm": float(np.median([e["rmse_mm"] for e in exact])) if exact else float("nan"),
         "qprime_rmse_xyz_mm": [pooled_rmse(q[f"{a}_mm"] for q in qprime) for a in _AXES],
         "table2_surface_xyz_mm": [pooled_rmse(t[f"{a}_mm"] for t in table2["surface"]) for a in _AXES],
         "table2_axis_xyz_mm": [pooled_rmse(t[f"{a}_mm"] for t in table2["axis"]) for a in _AXES],
-        "misalignment_px": float(np.mean([f["misalignment_px"] for f in valid if f["misalignment_px"] is not None]))
-        if valid else float("nan"),
+        "misalignment_px": float(np.mean([e.misalignment_px for e in valid if e.misalignment_px is not None]))
+        if any(e.misalignment_px is not None for e in valid) else float("nan"),
         "fps": 1000.0 / float(np.median(totals)) if totals else float("nan"),
     }
 
@@ -250,16 +271,16 @@ def _fig12(run: Run, compensation: dict | None, path: Path) -> str:
     from bench.figures import plain_log_axis
 
     has_exact = run.has_ground_truth
-    has_q = any(f.get("qprime") for f in run.frames) or bool(
-        compensation and any(x.get("qprime") for x in compensation["nearest"]))
+    has_q = any(f.main.qprime for f in run.frames) or bool(
+        compensation and any(x.qprime for x in compensation["nearest"]))
     if not (has_exact or has_q):
         return "skipped: no ground truth and no depth source, so no error to plot"
     columns = [c for c, ok in (("exact", has_exact), ("qprime", has_q)) if ok]
     fig, axes = plt.subplots(3, len(columns), figsize=(6.5 * len(columns), 8), sharex=True, squeeze=False)
-    t = [f["t_s"] for f in run.frames]
-    series = [("main", f"{run.summary.get('mode', 'default')} mode (every frame)", run.frames, t)]
-    if any("paper" in f for f in run.frames):
-        series.append(("paper", "paper mode (every frame, --compare)", [f.get("paper") or {} for f in run.frames], t))
+    t = [f.t_s for f in run.frames]
+    series = [("main", f"{run.summary.get('mode', 'default')} mode (every frame)", [f.main for f in run.frames], t)]
+    if any(f.paper is not None for f in run.frames):
+        series.append(("paper", "paper mode (every frame, --compare)", [f.paper for f in run.frames], t))
     if compensation:
         for variant in ("nearest", "nearest_image", "none"):
             if variant in compensation:
@@ -297,14 +318,12 @@ def _fig12(run: Run, compensation: dict | None, path: Path) -> str:
     return "written"
 
 
-def _axis_error(fields: Mapping, kind: str, axis: str) -> float:
-    if not fields or not fields.get("valid"):
+def _axis_error(estimate: EstimateRecord | None, kind: str, axis: str) -> float:
+    if estimate is None or not estimate.valid:
         return math.nan
     if kind == "exact":
-        errors = fields.get("errors")
-        return errors[f"rmse_{axis}_mm"] if errors else math.nan
-    q = fields.get("qprime")
-    return q[f"{axis}_mm"] if q else math.nan
+        return estimate.errors[f"rmse_{axis}_mm"] if estimate.errors else math.nan
+    return estimate.qprime[f"{axis}_mm"] if estimate.qprime else math.nan
 
 
 # --- Fig 13: frame rate ---------------------------------------------------------------------
@@ -316,12 +335,12 @@ def _fig13(run: Run, path: Path, compensation: dict | None = None) -> str:
     from bench.figures import plain_log_axis
 
     fig, ax = plt.subplots(figsize=(8, 3.8))
-    t = np.array([f["t_s"] for f in run.frames])
+    t = np.array([f.t_s for f in run.frames])
     for key, label in (("main", f"{run.summary.get('mode', 'default')} mode"), ("paper", "paper mode")):
-        fields = run.frames if key == "main" else [f.get("paper") for f in run.frames]
-        if key == "paper" and not any(fields):
+        estimates = [f.estimate(key) for f in run.frames]
+        if key == "paper" and not any(e is not None for e in estimates):
             continue
-        totals = np.array([(f or {}).get("timings_ms", {}).get("total", math.nan) for f in fields], dtype=float)
+        totals = np.array([math.nan if e is None else e.total_ms for e in estimates], dtype=float)
         fps = 1000.0 / totals
         ax.plot(t, fps, "-", color=_COLOURS[key], linewidth=1, label=f"{label} (median {np.nanmedian(fps):.1f} fps)")
     if compensation:
@@ -329,7 +348,7 @@ def _fig13(run: Run, path: Path, compensation: dict | None = None) -> str:
                                ("numpy", "paper mode, numpy SOM (re-run)")):
             if variant not in compensation:
                 continue
-            totals = np.array([f["timings_ms"]["total"] for f in compensation[variant]], dtype=float)
+            totals = np.array([e.total_ms for e in compensation[variant]], dtype=float)
             fps = 1000.0 / totals
             ax.plot(compensation["t_s"], fps, ".-", color=_COLOURS[f"paper_{variant}"], linewidth=1, markersize=3,
                     label=f"{label} (median {np.nanmedian(fps):.1f} fps)")
@@ -361,7 +380,7 @@ def _view(points: np.ndarray) -> np.ndarray:
 def _fig10c(run: Run, count: int, path: Path) -> str:
     import matplotlib.pyplot as plt
 
-    valid = [f for f in run.frames if f.get("valid")]
+    valid = [f for f in run.frames if f.main.valid]
     if not valid or count <= 0:
         return "skipped: no valid frame"
     picks = _evenly(valid, count)
@@ -370,18 +389,18 @@ def _fig10c(run: Run, count: int, path: Path) -> str:
     cmap = plt.get_cmap("viridis")
     for k, f in enumerate(picks):
         colour = cmap(k / max(len(picks) - 1, 1))
-        p = _view(f["points_m"])
+        p = _view(f.main.points_m)
         ax.plot(p[:, 0], p[:, 1], p[:, 2], "o-", color=colour, markersize=3, linewidth=1.5,
-                label=f"t = {f['t_s']:.1f} s")
-        if f.get("gt_m"):
-            g = _view(f["gt_m"])
+                label=f"t = {f.t_s:.1f} s")
+        if f.gt_m is not None:
+            g = _view(f.gt_m)
             ax.plot(g[:, 0], g[:, 1], g[:, 2], "--", color="black", linewidth=0.8, alpha=0.7)
-    if any(f.get("gt_m") for f in picks):
+    if any(f.gt_m is not None for f in picks):
         ax.plot([], [], "--", color="black", linewidth=0.8, label="exact backbone")
     ax.set_xlabel("x right (mm)")
     ax.set_ylabel("depth z (mm)")
     ax.set_zlabel("up -y (mm)")
-    _equal_3d(ax, np.vstack([_view(f["points_m"]) for f in picks]))
+    _equal_3d(ax, np.vstack([_view(f.main.points_m) for f in picks]))
     ax.set_title("3D centerlines of selected frames (Fig 10c)")
     ax.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
@@ -393,25 +412,25 @@ def _fig10c(run: Run, count: int, path: Path) -> str:
 def _fig11(run: Run, path: Path) -> str:
     import matplotlib.pyplot as plt
 
-    with_q = [f for f in run.frames if f.get("valid") and f.get("qprime_m")]
+    with_q = [f for f in run.frames if f.main.valid and f.main.qprime_m is not None and len(f.main.qprime_m)]
     if not with_q:
         return "skipped: no frame with depth (Q')"
     f = with_q[len(with_q) // 2]
-    q = np.array([[math.nan if v is None else v for v in row] for row in f["qprime_m"]], dtype=float)
+    q = np.asarray(f.main.qprime_m, dtype=float)
     fig = plt.figure(figsize=(7, 6.5))
     ax = fig.add_subplot(projection="3d")
-    p = _view(f["points_m"])
+    p = _view(f.main.points_m)
     ax.plot(p[:, 0], p[:, 1], p[:, 2], "o-", color=_COLOURS["main"], markersize=3, label="estimate Q")
     qv = _view(q)
     ax.plot(qv[:, 0], qv[:, 1], qv[:, 2], "s", color="tab:blue", markersize=3, label="Q' (depth at the left pixels)")
-    if f.get("gt_m"):
-        g = _view(f["gt_m"])
+    if f.gt_m is not None:
+        g = _view(f.gt_m)
         ax.plot(g[:, 0], g[:, 1], g[:, 2], "--", color="black", linewidth=1, label="exact backbone")
     ax.set_xlabel("x right (mm)")
     ax.set_ylabel("depth z (mm)")
     ax.set_zlabel("up -y (mm)")
     _equal_3d(ax, p)
-    ax.set_title(f"Q against Q' at t = {f['t_s']:.1f} s (Fig 11)")
+    ax.set_title(f"Q against Q' at t = {f.t_s:.1f} s (Fig 11)")
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -436,7 +455,7 @@ def _equal_3d(ax, points: np.ndarray) -> None:
 def _fig10ab(run: Run, count: int, path: Path) -> str:
     import matplotlib.pyplot as plt
 
-    with_images = [f for f in run.frames if f.get("images")]
+    with_images = [f for f in run.frames if f.images]
     if not with_images or count <= 0:
         return "skipped: the run recorded no images"
     background = run.image(with_images[-1], "left")
@@ -461,8 +480,8 @@ def _fig10ab(run: Run, count: int, path: Path) -> str:
             if found is not None:
                 x, y, w, h = cv2.boundingRect(found)
                 box = np.array([min(box[0], x), min(box[1], y), max(box[2], x + w), max(box[3], y + h)])
-        if f.get("valid"):
-            uv = np.round(np.asarray(f["left_uv"]) * 4).astype(np.int32)
+        if f.main.valid:
+            uv = np.round(np.asarray(f.main.left_uv) * 4).astype(np.int32)
             cv2.polylines(lines_img, [uv.reshape(-1, 1, 2)], False, colour, 2, cv2.LINE_AA, shift=2)
             for point in uv:
                 cv2.circle(lines_img, tuple(int(v) for v in point), 4 * 3, colour, -1, cv2.LINE_AA, shift=2)
@@ -499,7 +518,7 @@ def _main_estimator_config(run: Run) -> EstimatorConfig:
 def write_overlay_video(run: Run, path: Path, scale: float) -> str:
     """Every recorded left frame with its estimated centerline (green; paper mode purple) and the
     projected exact backbone (white), as an MP4 (mp4v) at the experiment's real pace (at least 2 fps)."""
-    with_images = [f for f in run.frames if f.get("images")]
+    with_images = [f for f in run.frames if f.images]
     if not with_images:
         return "skipped: the run recorded no images"
     calibration = run.calibration
@@ -508,7 +527,7 @@ def write_overlay_video(run: Run, path: Path, scale: float) -> str:
         return "skipped: image files missing"
     h, w = first.shape[:2]
     size = (max(2, int(round(w * scale / 2)) * 2), max(2, int(round(h * scale / 2)) * 2))
-    span = with_images[-1]["t_s"] - with_images[0]["t_s"]
+    span = with_images[-1].t_s - with_images[0].t_s
     fps = max(2.0, (len(with_images) - 1) / span) if span > 0 else 2.0
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
     if not writer.isOpened():
@@ -526,15 +545,15 @@ def write_overlay_video(run: Run, path: Path, scale: float) -> str:
                 pts = np.round(uv * 4).astype(np.int32).reshape(-1, 1, 2)
                 cv2.polylines(frame, [pts], False, colour, thickness, cv2.LINE_AA, shift=2)
 
-            if f.get("gt_m"):
-                draw(calibration.project(np.asarray(f["gt_m"]), "left"), (255, 255, 255), 1)
-            if (f.get("paper") or {}).get("valid"):
-                draw(f["paper"]["left_uv"], (200, 60, 160), 1)
-            if f.get("valid"):
-                draw(f["left_uv"], (60, 200, 60), 2)
-            text = f"t {f['t_s']:5.1f} s  " + " ".join(f"{k} {v:.2f}" for k, v in f["commanded_bar"].items() if v)
-            status = (f"rmse {f['errors']['rmse_mm']:.1f} mm" if f.get("errors")
-                      else ("valid" if f.get("valid") else f"invalid: {f.get('reason', '')}"[:60]))
+            if f.gt_m is not None:
+                draw(calibration.project(np.asarray(f.gt_m), "left"), (255, 255, 255), 1)
+            if f.paper is not None and f.paper.valid:
+                draw(f.paper.left_uv, (200, 60, 160), 1)
+            if f.main.valid:
+                draw(f.main.left_uv, (60, 200, 60), 2)
+            text = f"t {f.t_s:5.1f} s  " + " ".join(f"{k} {v:.2f}" for k, v in f.commanded_bar.items() if v)
+            status = (f"rmse {f.main.errors['rmse_mm']:.1f} mm" if f.main.errors
+                      else ("valid" if f.main.valid else f"invalid: {f.main.reason or ''}"[:60]))
             draw_caption(frame, (text, status))
             writer.write(frame)
     finally:
@@ -662,12 +681,12 @@ def _write_markdown(run: Run, compensation: dict | None, written: Mapping[str, s
 def _flag_lines(run: Run, compensation: dict | None) -> list[str]:
     """How many frames each plausibility check flagged: dropped with the checks on (default mode),
     kept and only named with them off (paper mode, which reports every frame as the paper does)."""
-    columns = [("this run's estimator", run.frames)]
-    if any("paper" in f for f in run.frames):
-        columns.append(("paper mode (--compare)", [f.get("paper") or {} for f in run.frames]))
+    columns = [("this run's estimator", [f.main for f in run.frames])]
+    if any(f.paper is not None for f in run.frames):
+        columns.append(("paper mode (--compare)", [f.paper for f in run.frames]))
     if compensation and "nearest" in compensation:
         columns.append(("paper mode (re-run)", compensation["nearest"]))
-    if not any(f.get("flags") for _, fields in columns for f in fields):
+    if not any(e is not None and e.flags for _, estimates in columns for e in estimates):
         return ["", "## Plausibility checks", "", "No frame failed a plausibility check "
                 "(a loop in the silhouette, a centerline touching itself, an implausible length, points behind the "
                 "camera)."]
@@ -676,7 +695,8 @@ def _flag_lines(run: Run, compensation: dict | None) -> list[str]:
              "and only names the check, as the paper reports every frame.", "",
              "| check | " + " | ".join(name for name, _ in columns) + " |", "|---|" + "---|" * len(columns)]
     for check in CHECKS:
-        counts = [f"{sum(check in (f.get('flags') or ()) for f in fields)}/{len(fields)}" for _, fields in columns]
+        counts = [f"{sum(e is not None and check in e.flags for e in estimates)}/{len(estimates)}"
+                  for _, estimates in columns]
         lines.append(f"| {check} | " + " | ".join(counts) + " |")
     return lines
 

@@ -25,7 +25,8 @@ from collections.abc import Iterable, Mapping, Sequence
 
 import numpy as np
 
-from estimator import EstimateResult, StereoCalibration
+from bench.frame_record import ROUND_M, FrameRecord
+from estimator import StereoCalibration
 from estimator.metrics import axis_rmse, depth_camera_points, score_against_backbone
 
 # Zou et al., section 5: Table 2 (RMSE per axis over the whole motion, against the ZED's depth Q')
@@ -44,9 +45,6 @@ PAPER = {
 DEPTH_UNIT_M = 1e-4
 _DEPTH_MAX_UNITS = 65535
 
-_ROUND_M = 7    # 0.1 um
-_ROUND_PX = 3
-_ROUND_MS = 3
 
 
 def quantize_depth(depth_m: np.ndarray) -> np.ndarray:
@@ -61,20 +59,6 @@ def dequantize_depth(units: np.ndarray, unit_m: float = DEPTH_UNIT_M) -> np.ndar
     depth = units.astype(np.float32) * np.float32(unit_m)
     depth[units == 0] = np.inf
     return depth
-
-
-def estimate_fields(result: EstimateResult) -> dict:
-    """The JSON fields of one estimate: validity, points, 2D centerlines, timings, misalignment."""
-    return {
-        "valid": bool(result.valid),
-        "reason": result.reason,
-        "points_m": _rounded(result.points, _ROUND_M),
-        "left_uv": _rounded(result.left_uv, _ROUND_PX),
-        "right_uv": _rounded(result.right_uv, _ROUND_PX),
-        "timings_ms": {k: round(float(v), _ROUND_MS) for k, v in result.timings_ms.items()},
-        "misalignment_px": _finite_or_none(result.misalignment_px),
-        "flags": list(result.flags),  # plausibility checks failed (a kept frame in paper mode)
-    }
 
 
 def score_fields(points_m: np.ndarray, left_uv: np.ndarray, gt_m: np.ndarray | None, depth_m: np.ndarray | None,
@@ -102,7 +86,7 @@ def score_fields(points_m: np.ndarray, left_uv: np.ndarray, gt_m: np.ndarray | N
         if rmse["count"]:
             rmse["rmse_mm"] = math.sqrt(rmse["x_mm"] ** 2 + rmse["y_mm"] ** 2 + rmse["z_mm"] ** 2)
             out["qprime"] = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in rmse.items()}
-        out["qprime_m"] = [[None if not np.isfinite(v) else round(float(v), _ROUND_M) for v in row] for row in q]
+        out["qprime_m"] = [[None if not np.isfinite(v) else round(float(v), ROUND_M) for v in row] for row in q]
     return out
 
 
@@ -117,7 +101,7 @@ def summarize(records: Sequence[Mapping], *, key: str | None = None, arm_length_
     """Summary of a run's frame records (``frames.jsonl`` lines).
 
     Args:
-        records: frame records in order.
+        records: frame records in order (``FrameRecord`` or their JSON objects).
         key: None for the main estimate, "paper" for the paper-mode comparison stored under it.
         arm_length_mm: for the error/length ratio; default: the first ground-truth backbone's length.
         wall_s: wall-clock duration of the loop, for ``fps_loop``.
@@ -126,18 +110,18 @@ def summarize(records: Sequence[Mapping], *, key: str | None = None, arm_length_
         frames, valid_frames, rmse_mm, rmse_xyz_mm, max_mm, tip_mm, fps and friends (see the
         module docstring for how frames are pooled); NaN/None where nothing could be measured.
     """
-    results = [r if key is None else r.get(key) for r in records]
-    results = [r for r in results if r is not None]
-    valid = [r for r in results if r.get("valid")]
-    scored = [r["errors"] for r in valid if r.get("errors")]
-    qprime = [r["qprime"] for r in valid if r.get("qprime")]
-    totals = [r["timings_ms"]["total"] for r in results if r.get("timings_ms", {}).get("total")]
+    frames = [FrameRecord.coerce(r) for r in records]
+    results = [r for r in (f.estimate(key) for f in frames) if r is not None]
+    valid = [r for r in results if r.valid]
+    scored = [r.errors for r in valid if r.errors]
+    qprime = [r.qprime for r in valid if r.qprime]
+    totals = [r.timings_ms["total"] for r in results if r.timings_ms.get("total")]
     stages: dict[str, list[float]] = {}
     for r in results:
-        for stage, ms in r.get("timings_ms", {}).items():
+        for stage, ms in r.timings_ms.items():
             stages.setdefault(stage, []).append(ms)
     if arm_length_mm is None:
-        arm_length_mm = next((_length_mm(rec["gt_m"]) for rec in records if rec.get("gt_m")), None)
+        arm_length_mm = next((_length_mm(f.gt_m) for f in frames if f.gt_m is not None and len(f.gt_m)), None)
     out = {
         "frames": len(results),
         "valid_frames": len(valid),
@@ -173,8 +157,8 @@ def summarize(records: Sequence[Mapping], *, key: str | None = None, arm_length_
     reasons: dict[str, int] = {}
     examples: dict[str, str] = {}
     for r in results:
-        if not r.get("valid"):
-            reason = r.get("reason") or "?"
+        if not r.valid:
+            reason = r.reason or "?"
             template = reason_template(reason)
             reasons[template] = reasons.get(template, 0) + 1
             examples.setdefault(template, reason)
@@ -242,14 +226,6 @@ def summary_table(summary: Mapping, *, label: str = "this run", paper_mode: Mapp
 
 
 # --- helpers ------------------------------------------------------------------------------
-
-
-def _rounded(array: np.ndarray, decimals: int) -> list:
-    return np.round(np.asarray(array, dtype=float), decimals).tolist()
-
-
-def _finite_or_none(value: float) -> float | None:
-    return round(float(value), 4) if value is not None and np.isfinite(value) else None
 
 
 def _mean(values: Iterable[float]) -> float:

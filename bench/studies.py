@@ -35,17 +35,21 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from bench.capture import captures
 from bench.config import BenchConfig, ConfigError, load_bench_config
+from bench.devices import Stop
 from bench.experiments import make_schedule
+from bench.frame_record import FrameRecord
+from bench.process import Capture, process
 from bench.recording import new_run_folder, write_json
-from bench.run import _stop_errors
 from estimator import CalibrationFileError, CenterlineEstimator, EstimatorConfig, StereoCalibration
 from estimator.centerline import centerline_nodes
 from estimator.config import CENTERLINES
-from estimator.metrics import closest_points_on_polyline, quantization_error, score_against_backbone, topology_error
+from estimator.metrics import closest_points_on_polyline, quantization_error, topology_error
 from estimator.segmentation import arm_mask, contour_points
 from estimator.som import linear_init, som_online
 from hardware.errors import DeviceError
+from hardware.interfaces import StereoFrame
 
 DEFAULT_FRAMES = 3
 MAX_STUDY_FRAMES = 1000  # each frame is trained on hundreds of times: more is hours of work
@@ -75,13 +79,16 @@ METHOD_NAMES = {"som": "SOM", "competitive": "competitive learning", "kmeans++":
 
 @dataclass
 class StudyFrame:
-    """One twin frame: raw pair, exact backbone (left camera frame), time and commanded pressures."""
+    """One twin frame: raw pair, exact backbone (left camera frame), time and commanded pressures, and
+    the frame as the run would record it (the configured estimator's result, scored)."""
 
     left: np.ndarray
     right: np.ndarray
     gt_m: np.ndarray
     t_s: float
     commanded_bar: dict
+    capture: Capture | None = None
+    record: FrameRecord | None = None
 
 
 def study_command(args) -> int:
@@ -103,7 +110,7 @@ def study_command(args) -> int:
     print(f"softarm study {which}: rendering {n} twin frames along the experiment ...", flush=True)
     try:
         frames, calibration = twin_frames(config, n)
-    except (ConfigError, CalibrationFileError, DeviceError, OSError, *_stop_errors()) as e:
+    except (ConfigError, CalibrationFileError, DeviceError, OSError) as e:
         print(f"softarm study {which}: {e}; nothing written", file=sys.stderr)
         return 1
     study = som_study if which == "som" else compare_study
@@ -127,16 +134,20 @@ class NoArmInFramesError(ValueError):
 
 
 def twin_frames(config: BenchConfig, count: int) -> tuple[list[StudyFrame], StereoCalibration]:
-    """Render ``count`` frames spread over the configured experiment on the twin (whatever the backend)."""
+    """Render ``count`` frames spread over the configured experiment on the twin (whatever the backend),
+    through the run's own capture loop and frame path (the configured estimator's record of each)."""
     from bench.factory import make_devices
-    from bench.run import _sim_captures, _Stop
 
     schedule = make_schedule(config.experiment, frames=count)
     devices = make_devices(dataclasses.replace(config, backend="sim"))
     try:
         calibration = devices.camera.calibration
-        frames = [StudyFrame(c.frame.left, c.frame.right, np.asarray(c.gt_m), c.t_s, c.commanded_bar)
-                  for c in _sim_captures(devices, schedule, config.experiment, _Stop())]
+        estimator = CenterlineEstimator(calibration, config.estimator_config())
+        frames = []
+        for c in captures(devices, schedule, config.experiment, Stop()):
+            record = process(c, {"main": estimator}, calibration)
+            frames.append(StudyFrame(c.frame.left, c.frame.right, np.asarray(record.gt_m), c.t_s,
+                                     dict(c.commanded_bar), c, record))
     finally:
         devices.close()
     return frames, calibration
@@ -487,12 +498,12 @@ def compare_study(frames: Sequence[StudyFrame], calibration: StereoCalibration, 
             scores, totals, valid, flagged = [], [], 0, 0
             for f in frames:
                 est = CenterlineEstimator(calibration, base.replace(mode=mode, centerline=method))  # cold, per frame
-                result = est.estimate(f.left, f.right)
-                totals.append(result.timings_ms.get("total", float("nan")))
+                result = process(_capture(f), {"main": est}, calibration).main
+                totals.append(result.total_ms)
                 flagged += bool(result.flags)
                 if result.valid:
                     valid += 1
-                    scores.append(score_against_backbone(result.points, f.gt_m))
+                    scores.append(result.errors)
             pipeline[mode] = {
                 "valid": valid, "frames": len(frames), "flagged": flagged,
                 "rmse_mm": _pooled([s["rmse_mm"] for s in scores]),
@@ -516,6 +527,14 @@ def compare_study(frames: Sequence[StudyFrame], calibration: StereoCalibration, 
     _compare_markdown(result, out / "compare.md")
     result["headline"] = headline
     return result
+
+
+def _capture(frame: StudyFrame) -> Capture:
+    """The frame as captured (its exact backbone; depth kept where the capture had it)."""
+    if frame.capture is not None:
+        return frame.capture
+    return Capture(index=0, t_s=frame.t_s, frame=StereoFrame(frame.left, frame.right, frame.t_s, 0),
+                   commanded_bar=frame.commanded_bar, gt_m=frame.gt_m)
 
 
 def _mm(p: dict) -> str:

@@ -30,6 +30,11 @@ class EStopError(DeviceError):
     """The valve board's e-stop is latched: every valve is vented and set-points are refused."""
 
 
+class SimulationError(DeviceError):
+    """A simulated device could not go on: the digital twin's physics went unstable (a NaN, a MuJoCo
+    warning, a diverging state). A device fault like any other: a run stops cleanly, keeping its frames."""
+
+
 class EndOfStreamError(DeviceError):
     """A recorded camera source (video file or image folder) has no more frames."""
 

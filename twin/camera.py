@@ -3,6 +3,10 @@
 ``grab()`` renders the arm's current shape into a raw (distorted, noisy) stereo pair, stamped
 with the simulated time; ``depth_left()`` gives the left depth map of that same frame (the
 paper's Q' metric compares against it). The calibration is the one the renderer uses.
+
+Frame k's sensor noise is drawn from (seed, k) alone, so ``last_images`` (the frame before its
+noise, and k) with ``noise_seed`` and ``effects`` reproduce the grabbed images exactly: a run
+stores that, losslessly compressible, instead of the noise.
 """
 
 from __future__ import annotations
@@ -14,9 +18,10 @@ import numpy as np
 from estimator import StereoCalibration
 from hardware.errors import DeviceError, NotConnectedError
 from hardware.interfaces import StereoCamera, StereoFrame
-from twin.render import StereoRenderer
+from twin.render import StereoImages, StereoRenderer
 from twin.rig import StereoRig
 from twin.scene import LabScene
+from twin.sensor import CameraEffects
 from twin.shape import ArmShape
 
 
@@ -48,6 +53,7 @@ class SimStereoCamera(StereoCamera):
         self._last_depth: np.ndarray | None = None
         self._last_shape: ArmShape | None = None
         self._last_time_s: float | None = None
+        self._last_images: StereoImages | None = None
 
     @property
     def scene(self) -> LabScene | None:
@@ -95,6 +101,7 @@ class SimStereoCamera(StereoCamera):
         self._last_depth = None
         self._last_shape = None
         self._last_time_s = None
+        self._last_images = None
 
     def grab(self) -> StereoFrame:
         """Render the arm as it is now.
@@ -112,9 +119,10 @@ class SimStereoCamera(StereoCamera):
         t_s = float(self._clock_s())
         # The previous frame's shape lets the renderer blur the arm's motion over the exposure.
         previous = None if self._last_shape is None else (self._last_shape, self._last_time_s)
-        images = self._renderer.render(shape, depth=True, t_s=t_s, previous=previous)
+        images = self._renderer.render(shape, depth=True, t_s=t_s, previous=previous, frame_index=self._index)
         frame = StereoFrame(images.left, images.right, t_s, self._index)
         self._index += 1
+        self._last_images = images
         self._last_depth = images.depth_left_m
         self._last_shape = shape
         self._last_time_s = t_s
@@ -133,6 +141,31 @@ class SimStereoCamera(StereoCamera):
         if self._last_depth is None:
             raise DeviceError(f"{type(self).__name__}: depth_left() before the first grab()")
         return self._last_depth.copy()
+
+    @property
+    def last_images(self) -> StereoImages | None:
+        """The last grabbed frame as rendered: the raw images, their noise-free versions (``clean_left``,
+        ``clean_right``) and the frame's number in the noise sequence (``frame_index``, the frame index);
+        None before the first grab."""
+        return self._last_images
+
+    @property
+    def noise_seed(self) -> int:
+        """The seed of this connection's sensor noise (``twin.sensor.frame_generator(seed, index, side)``)."""
+        return self.renderer.seed
+
+    @property
+    def effects(self) -> CameraEffects:
+        """The camera effects the images go through (their random part: noise, YUYV)."""
+        return self.renderer.effects
+
+    def background(self, side: str) -> np.ndarray | None:
+        """The noise-free image of the static scene for one eye (``StereoRenderer.background``)."""
+        return self.renderer.background(side)
+
+    def background_depth(self) -> np.ndarray | None:
+        """The left depth of the static scene, metres (``StereoRenderer.background_depth``)."""
+        return self.renderer.background_depth()
 
     @property
     def last_shape(self) -> ArmShape | None:

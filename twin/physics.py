@@ -21,6 +21,7 @@ from collections.abc import Sequence
 import mujoco
 import numpy as np
 
+import hardware.errors
 from twin.mjcf import STANDARD_GRAVITY_M_S2, chain_layout, make_mjcf
 from twin.params import ArmParams
 from twin.shape import ArmShape, Plate
@@ -48,8 +49,8 @@ def _route_mujoco_warnings() -> None:
         mujoco.set_mju_user_warning(lambda message: _log.warning("MuJoCo: %s", message))
 
 
-class SimulationError(RuntimeError):
-    """The simulation produced a MuJoCo warning, a NaN or a diverging state.
+class SimulationError(hardware.errors.SimulationError):
+    """The simulation produced a MuJoCo warning, a NaN or a diverging state (a device error of the twin).
 
     Attributes:
         step: 1-based index of the MuJoCo step (since the last reset) after which it was detected.

@@ -38,7 +38,7 @@ from twin.lab_objects import Part, scene_parts  # noqa: E402
 from twin.meshes import Prop, pose_with_z, rotation_minimising_frames, tube_surface  # noqa: E402, F401
 from twin.rig import SensorModel, StereoRig  # noqa: E402
 from twin.scene import LabScene, SceneObject, clean_scene, temperature_rgb  # noqa: E402
-from twin.sensor import CameraEffects, SensorSimulator  # noqa: E402
+from twin.sensor import CameraEffects, SensorSimulator, frame_generator  # noqa: E402
 from twin.shape import ArmShape, Plate  # noqa: E402
 
 _SIDES = ("left", "right")
@@ -150,11 +150,18 @@ class StereoImages:
         depth_left_m: (H, W) float32, metres along the left optical axis (camera z) of the
             surface seen at each RAW left pixel; ``inf`` where only background is seen.
             ``None`` when depth was not requested.
+        clean_left, clean_right: the same images before the sensor noise and the YUYV transport
+            (after distortion, blur, vignetting and gain): ``left`` is
+            ``sensor.noisy(clean_left, frame_generator(seed, frame_index, "left"))``, bit for bit.
+        frame_index: the frame's number in the renderer's noise sequence.
     """
 
     left: np.ndarray
     right: np.ndarray
     depth_left_m: np.ndarray | None
+    clean_left: np.ndarray | None = None
+    clean_right: np.ndarray | None = None
+    frame_index: int = 0
 
 
 @dataclass(frozen=True, eq=False)
@@ -225,7 +232,9 @@ class StereoRenderer:
 
     Args:
         rig: the cameras, their calibration, pose and the default appearance.
-        seed: seed of the sensor-noise generator (frames are reproducible for a given seed).
+        seed: seed of the sensor noise: frame k's noise is drawn from (seed, k) alone
+            (``twin.sensor.frame_generator``), so frames are reproducible for a given seed and a
+            recorded frame's noise can be drawn again from its noise-free image.
         tube_sides: vertices around the tube (48 keeps the polygon within 0.05 px of a circle).
         sensor: overrides ``rig.sensor`` (e.g. noise-free renders for measurements).
         fast_readback: draw and read only the rectangle holding the objects (scissor test) and
@@ -250,7 +259,10 @@ class StereoRenderer:
         self.sensor = rig.sensor if sensor is None else sensor
         self.effects = effects if effects is not None else self.scene.effects(self.sensor)
         self.tube_sides = int(tube_sides)
+        self.seed = int(seed)
         self._rng = np.random.default_rng(seed)
+        self._next_frame = 0
+        self._background: dict[str, np.ndarray] = {}
         self.timings_s: dict[str, float] = {}
         self._pyrender, self._GL = _gl()
         pyrender = self._pyrender
@@ -655,8 +667,24 @@ class StereoRenderer:
             out.append((sub, float(tau)))
         return out
 
+    def background(self, side: str) -> np.ndarray | None:
+        """The noise-free image of the static scene (nothing that moves, no arm) for one eye: outside
+        the region a frame redraws, its ``clean_left``/``clean_right`` equal this exactly (a run stores
+        a frame as its difference from it). None without the fast read-back (no static scene kept)."""
+        if not self._fast_readback:
+            return None
+        if side not in self._background:
+            done = self._static_done[side]
+            self._background[side] = self._sensors[side].clean(self._static_raw[side]) if done is None else done
+        return self._background[side]
+
+    def background_depth(self) -> np.ndarray | None:
+        """(H, W) float32 metres: the left depth of the static scene (inf: nothing), which a frame's
+        ``depth_left_m`` equals outside the region it redraws; None without the fast read-back."""
+        return self._static_depth if self._fast_readback else None
+
     def render(self, shape: ArmShape | None, *, depth: bool = True, props: Sequence[Prop] = (), t_s: float = 0.0,
-               previous: tuple[ArmShape, float] | None = None) -> StereoImages:
+               previous: tuple[ArmShape, float] | None = None, frame_index: int | None = None) -> StereoImages:
         """Render one raw stereo pair.
 
         Args:
@@ -665,10 +693,17 @@ class StereoRenderer:
             props: extra objects for this frame only.
             t_s: the time of the frame (moving scene objects follow their paths; the exposure ends here).
             previous: the arm's (shape, time) at the previous frame, for motion blur over the exposure.
+            frame_index: the frame's number in the noise sequence (its noise is drawn from the seed
+                and this number only); None: the one after the last frame rendered (0 at first).
 
         Returns:
-            StereoImages with BGR uint8 raw images of ``rig.image_size`` and the left depth.
+            StereoImages with BGR uint8 raw images of ``rig.image_size``, their noise-free versions
+            and the left depth.
         """
+        index = self._next_frame if frame_index is None else int(frame_index)
+        if index < 0:
+            raise ValueError(f"frame_index: expected an integer >= 0, got {frame_index}")
+        self._next_frame = index + 1
         t0 = time.perf_counter()
         subframes = [(None if s is None else self._arm_geometry(s), tau)
                      for s, tau in self._subframes(shape, t_s, previous)]
@@ -727,18 +762,20 @@ class StereoRenderer:
                         canvases[side] = np.ascontiguousarray(colour)
                         zbuf = np.ascontiguousarray(z) if side == "left" else zbuf
         t3 = time.perf_counter()
-        images = {}
+        images, clean = {}, {}
         for side in _SIDES:
             raw, roi = self._to_raw(side, canvases[side], bottom_up)
             static_done = None if not self._fast_readback else self._static_done[side]
-            images[side] = self._sensors[side].apply(raw, static_done, roi)
+            sensor = self._sensors[side]
+            clean[side] = sensor.clean(raw, static_done, roi)
+            images[side] = sensor.noisy(clean[side], frame_generator(self.seed, index, side))
         depth_m = self._depth_to_raw(zbuf, bottom_up) if depth else None
         t4 = time.perf_counter()
         if props:
             self._set_props(())
         self.timings_s = {"scene": t1 - t0, "gl_left": gl["left"], "gl_right": gl["right"], "post": t4 - t3,
                           "total": t4 - t0}
-        return StereoImages(images["left"], images["right"], depth_m)
+        return StereoImages(images["left"], images["right"], depth_m, clean["left"], clean["right"], index)
 
     def close(self) -> None:
         """Release the OpenGL context; closing twice is harmless."""

@@ -179,6 +179,24 @@ def vignetting_map(K: np.ndarray, image_size: tuple[int, int], fall_off: float) 
     return ((1.0 + r2) ** (-power)).astype(np.float32)
 
 
+# The eyes' numbers in a frame's noise seed.
+EYES = {"left": 0, "right": 1}
+
+
+def frame_generator(seed: int, index: int, side: str) -> np.random.Generator:
+    """The noise generator of one eye of frame ``index``: its own stream, seeded by (seed, index, eye).
+
+    Each frame's noise is drawn from nothing but these three numbers, so a recorded frame's noise
+    can be drawn again exactly from its noise-free image (``SensorSimulator.noisy``), whatever
+    frames came before it.
+    """
+    if side not in EYES:
+        raise ValueError(f"side: expected 'left' or 'right', got {side!r}")
+    if isinstance(seed, bool) or isinstance(index, bool) or int(seed) < 0 or int(index) < 0:
+        raise ValueError(f"seed and index: expected integers >= 0, got {seed!r} and {index!r}")
+    return np.random.default_rng([int(seed), int(index), EYES[side]])
+
+
 class SensorSimulator:
     """Apply :class:`CameraEffects` to one eye's raw optical images.
 
@@ -186,7 +204,8 @@ class SensorSimulator:
         effects: the camera effects.
         K: (3, 3) the eye's camera matrix (the vignetting is centred on its principal point).
         image_size: (width, height) of the raw images.
-        rng: the noise generator (shared by both eyes so a stereo pair draws one sequence).
+        rng: the noise generator :meth:`apply` draws from when it is given none (the renderer gives
+            each eye of each frame its own, ``frame_generator``).
     """
 
     def __init__(self, effects: CameraEffects, K: np.ndarray, image_size: tuple[int, int],
@@ -231,8 +250,8 @@ class SensorSimulator:
         return self._gain(self.deterministic(raw))
 
     def apply(self, raw: np.ndarray, static_done: np.ndarray | None = None,
-              box: tuple[int, int, int, int] | None = None) -> np.ndarray:
-        """The raw optical image as the camera delivers it.
+              box: tuple[int, int, int, int] | None = None, rng: np.random.Generator | None = None) -> np.ndarray:
+        """The raw optical image as the camera delivers it: :meth:`clean`, then :meth:`noisy`.
 
         Args:
             raw: (H, W, 3) uint8 BGR optical image (after lens distortion).
@@ -240,36 +259,52 @@ class SensorSimulator:
                 ``box`` (x0, y0, x1, y1) of ``raw`` differs from the static scene, so only it goes
                 through the deterministic stages again.
             box: see ``static_done``.
+            rng: the noise generator of this image (``frame_generator``); None draws from the one
+                given to the constructor, image after image.
         """
+        return self.noisy(self.clean(raw, static_done, box), rng)
+
+    def clean(self, raw: np.ndarray, static_done: np.ndarray | None = None,
+              box: tuple[int, int, int, int] | None = None) -> np.ndarray:
+        """The deterministic stages only (blur, shake, vignetting and gain; no noise, no YUYV): what
+        :meth:`noisy` turns into the delivered image. Arguments as for :meth:`apply`."""
+        if self.effects.legacy:
+            return self.deterministic(raw)
+        if static_done is None or box is None:
+            return self.static(raw)
+        image = static_done.copy()
+        h, w = raw.shape[:2]
+        m = self.margin_px
+        x0, y0, x1, y1 = box
+        X0, Y0, X1, Y1 = max(x0 - 2 * m, 0), max(y0 - 2 * m, 0), min(x1 + 2 * m, w), min(y1 + 2 * m, h)
+        if X1 > X0 and Y1 > Y0:
+            region = self.deterministic(np.ascontiguousarray(raw[Y0:Y1, X0:X1]))
+            ix0, iy0 = max(x0 - m, X0), max(y0 - m, Y0)
+            ix1, iy1 = min(x1 + m, X1), min(y1 + m, Y1)
+            inner = region[iy0 - Y0:iy1 - Y0, ix0 - X0:ix1 - X0]
+            image[iy0:iy1, ix0:ix1] = self._gain(np.ascontiguousarray(inner), (ix0, iy0, ix1, iy1))
+        return image
+
+    def noisy(self, clean: np.ndarray, rng: np.random.Generator | None = None) -> np.ndarray:
+        """The random stages over a :meth:`clean` image: sensor noise drawn from ``rng`` (None: the
+        constructor's generator), then the YUYV transport. The same ``clean`` and a generator in the
+        same state give the same image, bit for bit (a recorded run re-applies the noise this way)."""
+        rng = self._rng if rng is None else rng
         e = self.effects
         if e.legacy:
-            image = self.deterministic(raw)
-            return self._legacy_noise(image)
-        if static_done is None or box is None:
-            image = self.static(raw)
-        else:
-            image = static_done.copy()
-            h, w = raw.shape[:2]
-            m = self.margin_px
-            x0, y0, x1, y1 = box
-            X0, Y0, X1, Y1 = max(x0 - 2 * m, 0), max(y0 - 2 * m, 0), min(x1 + 2 * m, w), min(y1 + 2 * m, h)
-            if X1 > X0 and Y1 > Y0:
-                region = self.deterministic(np.ascontiguousarray(raw[Y0:Y1, X0:X1]))
-                ix0, iy0 = max(x0 - m, X0), max(y0 - m, Y0)
-                ix1, iy1 = min(x1 + m, X1), min(y1 + m, Y1)
-                inner = region[iy0 - Y0:iy1 - Y0, ix0 - X0:ix1 - X0]
-                image[iy0:iy1, ix0:ix1] = self._gain(np.ascontiguousarray(inner), (ix0, iy0, ix1, iy1))
+            return self._legacy_noise(clean, rng)
+        image = clean
         if e.read_noise_dn > 0 or e.shot_noise_dn > 0:
-            random = np.frombuffer(self._rng.bytes(image.size), dtype=np.uint8).reshape(image.shape)
+            random = np.frombuffer(rng.bytes(image.size), dtype=np.uint8).reshape(image.shape)
             image = _apply_level_noise(np.ascontiguousarray(image), random, self._level_table)
         if e.yuyv:
             image = yuyv_round_trip(image)
         return image
 
-    def _legacy_noise(self, image: np.ndarray) -> np.ndarray:
+    def _legacy_noise(self, image: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         e = self.effects
         if e.read_noise_dn > 0:
-            u8 = np.frombuffer(self._rng.bytes(image.size), dtype=np.uint8).reshape(image.shape)
+            u8 = np.frombuffer(rng.bytes(image.size), dtype=np.uint8).reshape(image.shape)
             noise = cv2.LUT(u8, self._legacy_lut)
             return cv2.addWeighted(image, e.exposure_gain, noise, 1.0, 0.0, dtype=cv2.CV_8U)
         if e.exposure_gain != 1.0:

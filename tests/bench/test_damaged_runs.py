@@ -64,7 +64,7 @@ def test_a_repeated_index_keeps_the_first_record(finished_run, capsys):
     code, text, _ = report(finished_run, capsys)
     assert code == 0
     run = load_run(finished_run)
-    assert [f["index"] for f in run.frames] == list(range(10)) and run.frames[3]["errors"]["rmse_mm"] == 4.0
+    assert [f.index for f in run.frames] == list(range(10)) and run.frames[3].main.errors["rmse_mm"] == 4.0
     assert "line 11: index 3 again (first on line 4); the first is kept" in text
     assert "frames recorded: 10, valid: 9" in text and "disagreed" not in text
 

@@ -349,7 +349,7 @@ def test_devices_close_everything_even_when_venting_fails():
         raise ConnectionError("link lost")
 
     twin.valves._vent = fail
-    devices = Devices(twin.camera, twin.valves, twin)
+    devices = Devices(twin.camera, twin.valves, twin=twin)
     with pytest.raises(ConnectionError):
         devices.close()
     assert not twin.camera.is_connected and not twin.valves.is_connected and twin.closed

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from bench.config import RecordingConfig
-from bench.record_schema import record_problem
+from bench.frame_record import record_problem
 from bench.recording import FRAMES_FILE, SUMMARY_FILE, RunFolderError, RunWriter, jsonable, load_run, read_frames
 from bench.scoring import DEPTH_UNIT_M, dequantize_depth, pooled_rmse, quantize_depth, summarize, summary_table
 from tests.fakes import small_calibration
@@ -54,11 +54,11 @@ def test_round_trip_is_exact(written_run):
     folder, pairs, depth = written_run
     run = load_run(folder)
     assert run.complete and run.skipped_lines == 0 and len(run.frames) == 4
-    assert [f["index"] for f in run.frames] == [0, 1, 2, 3]
+    assert [f.index for f in run.frames] == [0, 1, 2, 3]
     for record, (left, right) in zip(run.frames, pairs, strict=True):
         np.testing.assert_array_equal(run.image(record, "left"), left)  # PNG: lossless
         np.testing.assert_array_equal(run.image(record, "right"), right)
-        assert record["write_ms"] >= 0
+        assert record.write_ms >= 0
     back = run.depth(run.frames[0])
     assert back.dtype == np.float32 and np.all(np.isinf(back[:10]))
     np.testing.assert_allclose(back[10:20, 30:40], 1.2346, atol=1e-6)  # 0.1 mm steps
@@ -67,7 +67,7 @@ def test_round_trip_is_exact(written_run):
     # the keys the stored summary lacks are filled in from the frames; it agreed with them, so no note
     assert run.summary["note"] is None and run.summary["valid_frames"] == 3 and run.summary_note is None
     assert run.calibration.image_size == (64, 48)
-    assert run.frames[2]["valid"] is False and run.frames[2]["errors"] is None
+    assert run.frames[2].main.valid is False and run.frames[2].main.errors is None
 
 
 def test_every_line_is_on_disk_before_the_next_frame_is_taken(tmp_path):
@@ -110,7 +110,7 @@ def test_jpeg_frames_are_marked_lossy(tmp_path):
     writer.submit(frame_record(0, 1.0), left, right)
     writer.finish({})
     run = load_run(tmp_path / "run")
-    assert run.frames[0]["images"]["left"].endswith(".jpg") and not run.lossless(run.frames[0])
+    assert run.frames[0].images["left"].endswith(".jpg") and not run.lossless(run.frames[0])
     assert run.image(run.frames[0], "left").shape == left.shape
 
 
@@ -137,7 +137,7 @@ def test_read_frames_skips_and_names_every_line_that_is_not_a_frame(tmp_path):
              json.dumps({**frame_record(4, 1.0), "index": True}), json.dumps(frame_record(5, 1.0))[:40]]
     path.write_text("\n".join(lines))  # no end of line after the last: cut short by a kill
     records, skipped = read_frames(path)
-    assert [r["index"] for r in records] == [0, 1] and records[1]["errors"]["rmse_mm"] == 1.0  # the first index 1
+    assert [r.index for r in records] == [0, 1] and records[1].main.errors["rmse_mm"] == 1.0  # the first index 1
     assert [str(s) for s in skipped] == [
         "line 3: not a frame record: expected a JSON object, got [1, 2] (a list)",
         "line 4: not JSON (Expecting value: line 1 column 1 (char 0))",
@@ -154,9 +154,10 @@ def test_every_record_the_run_writes_passes_the_schema(written_run):
     folder, _, _ = written_run
     run = load_run(folder)
     assert len(run.frames) == 4 and run.skipped == []
-    assert all(record_problem(f) is None for f in run.frames)
-    assert record_problem({**run.frames[0], "paper": {**run.frames[0], "mode": "paper"}}) is None
-    assert record_problem({**run.frames[0], "paper": {**run.frames[0], "mode": "paper", "valid": "yes"}}) == (
+    assert all(record_problem(f.to_json()) is None for f in run.frames)
+    first = run.frames[0].to_json()
+    assert record_problem({**first, "paper": {**first, "mode": "paper"}}) is None
+    assert record_problem({**first, "paper": {**first, "mode": "paper", "valid": "yes"}}) == (
         "paper: valid: expected true or false, got 'yes' (a string)")
 
 

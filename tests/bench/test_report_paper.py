@@ -27,8 +27,10 @@ def paper_report(tmp_path_factory):
 def test_paper_mode_records_every_frame_with_its_flags(paper_report):
     folder, _ = paper_report
     run = load_run(folder)
-    assert len(run.frames) == FRAMES and all(f["valid"] for f in run.frames)  # the paper reports every frame
-    assert all(isinstance(f["flags"], list) and set(f["flags"]) <= set(CHECKS) for f in run.frames)
+    assert len(run.frames) == FRAMES and all(f.main.valid for f in run.frames)  # the paper reports every frame
+    assert all(isinstance(f.main.flags, tuple) and set(f.main.flags) <= set(CHECKS) for f in run.frames)
+    lines = [json.loads(line) for line in (folder / "frames.jsonl").read_text().splitlines()]
+    assert all(isinstance(line["flags"], list) and set(line["flags"]) <= set(CHECKS) for line in lines)
 
 
 def test_the_report_reruns_the_variants_and_computes_table_2_the_papers_way(paper_report):

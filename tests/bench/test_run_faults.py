@@ -14,9 +14,10 @@ import numpy as np
 
 import bench.factory
 import bench.recording
+from bench.devices import PressureDriver, Stop
 from bench.recording import load_run
 from bench.report import report_command
-from bench.run import _PressureDriver, _Stop, run_command
+from bench.run import run_command
 from estimator import CenterlineEstimator
 from hardware.errors import DeviceError
 from tests.bench.child import interrupt_child
@@ -201,11 +202,11 @@ class _DueNow:
 def test_a_set_point_under_way_when_the_run_stops_still_comes_before_the_vent(monkeypatch):
     """The pressure thread may outlive its join (a set-point hanging on a slow link); finish() must
     still not return before that set-point is done, so the vent that follows is the last command."""
-    monkeypatch.setattr(_PressureDriver, "JOIN_TIMEOUT_S", 0.05)
+    monkeypatch.setattr(PressureDriver, "JOIN_TIMEOUT_S", 0.05)
     valves = _HeldValves()
     valves.connect()
-    stop = _Stop()
-    driver = _PressureDriver(valves, _DueNow(), time.monotonic(), stop)
+    stop = Stop()
+    driver = PressureDriver(valves, _DueNow(), time.monotonic(), stop)
     driver.start()
     assert valves.entered.wait(10), "the pressure thread sent nothing"
     threading.Timer(0.3, valves.release.set).start()  # longer than the join waits

@@ -39,14 +39,14 @@ def test_rig_run_drives_the_commanded_ramp_and_vents(rig_folder, board, set_comm
     assert run.complete and run.backend == "rig" and not run.has_ground_truth
     assert run.skipped == [] and run.summary_note is None  # every line a valid record; summary.json agrees
     assert len(run.frames) + run.summary["dropped_frames"] == 6
-    commanded = [f["commanded_bar"]["s1_a"] for f in run.frames]
+    commanded = [f.commanded_bar["s1_a"] for f in run.frames]
     assert commanded == sorted(commanded) and all(c in RAMP_BAR for c in commanded)
-    assert all(f["commanded_bar"]["s1_b"] == 0 and f["chamber_bar"] is None for f in run.frames)
+    assert all(f.commanded_bar["s1_b"] == 0 and f.chamber_bar is None for f in run.frames)
     # no ground truth: nothing scored against it; the depth folder gives the paper's Q'
-    assert all(f["errors"] is None and "gt_m" not in f for f in run.frames)
-    valid = [f for f in run.frames if f["valid"]]
-    assert valid, [f["reason"] for f in run.frames]
-    assert all(f["qprime"]["count"] > 0 for f in valid)
+    assert all(f.main.errors is None and f.gt_m is None for f in run.frames)
+    valid = [f for f in run.frames if f.main.valid]
+    assert valid, [f.main.reason for f in run.frames]
+    assert all(f.main.qprime["count"] > 0 for f in valid)
     assert run.summary["qprime_rmse_xyz_mm"][2] < 30.0  # the drawn depth is the axis depth
     assert "depth maps from" in run.summary["depth_source"] and run.summary["ground_truth"] is False
     printed = capsys.readouterr().out
@@ -82,8 +82,8 @@ def test_a_failing_estimate_is_recorded_and_the_run_goes_on(rig_folder, board, m
     assert run_command(run_args(rig_config(rig_folder, board.port), out, no_report=True)) == 0
     run = load_run(out)
     assert len(run.frames) >= 3 and calls["n"] == len(run.frames)
-    assert run.frames[1]["valid"] is False and run.frames[1]["reason"] == "estimator error: RuntimeError: boom"
-    assert run.frames[2]["valid"] and run.frames[-1]["valid"]
+    assert run.frames[1].main.valid is False and run.frames[1].main.reason == "estimator error: RuntimeError: boom"
+    assert run.frames[2].main.valid and run.frames[-1].main.valid
     assert run.summary["invalid_reasons"] == {"estimator error: RuntimeError: boom": 1}
 
 
@@ -152,7 +152,7 @@ def test_a_signal_vents_closes_and_finishes_the_files(rig_folder, board, set_com
     assert summary["stopped"] == f"interrupted by {name}"
     run = load_run(out)
     assert run.complete and 1 <= len(run.frames) < 120 and run.skipped_lines == 0
-    assert all(Path(out / f["images"]["left"]).is_file() for f in run.frames)
+    assert all(Path(out / f.images["left"]).is_file() for f in run.frames)
     assert f"{name}: stopping" in stderr and "report skipped" in stdout
     assert "HEAVY []" in stdout  # a rig run never loads MuJoCo, pyrender or the twin
     assert not os.path.exists(out / "report")
@@ -174,13 +174,17 @@ def test_a_run_needing_more_than_2_gb_states_its_size_and_asks_for_yes(rig_folde
 def test_yes_lets_a_large_run_go_ahead(tmp_path, capsys):
     from bench.config import load_bench_config
     from bench.experiments import make_schedule
-    from bench.run import RunOptions, _check_disk
+    from bench.recording import frame_bytes
+    from bench.run import RunOptions, check_disk
 
     config = load_bench_config()
+    # the twin's frames: two noise-free eyes (0.014 bytes a pixel, measured), depth (0.012) and a 10 kB record
+    per_frame = frame_bytes(config.recording, (1280, 720), depth=True, compare=False, noise_free=True)
     schedule = make_schedule(config.experiment, frames=100000)
-    with pytest.raises(ValueError, match=r"this run would write about 219.4 GB .* run it again with --yes"):
-        _check_disk(config, RunOptions(out=tmp_path / "run"), schedule, (1280, 720))
-    _check_disk(config, RunOptions(out=tmp_path / "run", yes=True), schedule, (1280, 720))
-    assert "expected disk use about 219.4 GB (100000 frames x 2.2 MB)" in capsys.readouterr().out
+    with pytest.raises(ValueError, match=r"this run would write about 4.7 GB .* run it again with --yes"):
+        check_disk(config, RunOptions(out=tmp_path / "run"), schedule, per_frame)
+    check_disk(config, RunOptions(out=tmp_path / "run", yes=True), schedule, per_frame)
+    assert "expected disk use about 4.7 GB (100000 frames x 46.9 kB)" in capsys.readouterr().out
     small = make_schedule(config.experiment)  # the default run, 690 frames: no question asked
-    _check_disk(config, RunOptions(out=tmp_path / "run"), small, (1280, 720))
+    check_disk(config, RunOptions(out=tmp_path / "run"), small, per_frame)
+    assert "expected disk use about 32.3 MB (690 frames x 46.9 kB)" in capsys.readouterr().out

@@ -47,7 +47,7 @@ def test_a_killed_run_keeps_its_frames_and_reports(tmp_path):
     run = load_run(out)
     assert not run.complete and run.summary["stopped"] == "killed (no summary.json)"
     assert len(run.frames) >= 4 and run.skipped_lines <= 1
-    assert [f["index"] for f in run.frames] == list(range(len(run.frames)))  # none missing but the last
+    assert [f.index for f in run.frames] == list(range(len(run.frames)))  # none missing but the last
     for f in run.frames:  # a line in frames.jsonl means its images are on disk
         assert run.image(f, "left") is not None and run.image(f, "right") is not None and run.depth(f) is not None
     assert run.summary["frames"] == len(run.frames)
@@ -103,7 +103,7 @@ def test_ctrl_c_on_the_twin_stops_and_finishes_the_files(tmp_path):
     run = load_run(out)
     assert run.complete and run.summary["stopped"] == "interrupted by SIGINT"
     assert 3 <= len(run.frames) < 200 and run.skipped_lines == 0
-    assert [f["index"] for f in run.frames] == list(range(len(run.frames)))
+    assert [f.index for f in run.frames] == list(range(len(run.frames)))
     assert "SIGINT: stopping" in stderr and "report skipped" in stdout
 
 
@@ -172,14 +172,14 @@ def test_a_signal_during_a_long_capture_interval_stops_the_twin_at_once(tmp_path
     assert valves == {"setpoints_bar": [0.0] * 7, "connected": False}
     run = load_run(out)
     assert run.complete and run.summary["stopped"] == f"interrupted by {name}"
-    assert [f["index"] for f in run.frames] == [0] and run.skipped_lines == 0
+    assert [f.index for f in run.frames] == [0] and run.skipped_lines == 0
     assert f"{name}: stopping" in stderr and "report skipped" in stdout
 
 
 def test_the_twin_is_advanced_in_slices_that_add_up_to_the_same_steps(monkeypatch):
     """The slicing is whole physics steps: the twin ends at the same step as one long advance would,
     and a stop request between two slices leaves the rest of the interval unsimulated."""
-    from bench.run import SIM_SLICE_S, _Stop, advance_sliced
+    from bench.devices import SIM_SLICE_S, Stop, advance_sliced
 
     class Sim:
         timestep_s = 0.002
@@ -198,7 +198,7 @@ def test_the_twin_is_advanced_in_slices_that_add_up_to_the_same_steps(monkeypatc
                 stop.request("test")
 
     stop_after_three = False
-    twin, stop = CountingTwin(), _Stop()
+    twin, stop = CountingTwin(), Stop()
     assert advance_sliced(twin, 1.2345, stop)
     assert twin.steps == round(1.2345 / 0.002) and max(twin.calls) <= round(SIM_SLICE_S / 0.002)
     stop_after_three = True
