@@ -44,14 +44,19 @@ from estimator.segmentation import (
 from estimator.skeleton import resample_polyline
 from estimator.smoothing import polynomial_smooth, robust_spline_profile
 from estimator.triangulation import triangulate
-from estimator.tube_fit import RADIUS_BINS, EdgeSet, TubeFit, fit_tube, fuse_radius
+from estimator.tube_fit import MIN_CAP_POINTS, RADIUS_BINS, EdgeSet, TubeFit, fit_tube, fuse_radius
 
 COARSE_WIDTH_PX = 320  # the coarse images the arm is looked for on are about this wide
+RADIUS_FIT_SIGMA_M = 0.001  # see _fit_tube
 RADIUS_PRIOR_SIGMA_M = 0.004  # how far the configured radius may be off before the images correct it
 MIN_TUBE_INLIERS = 0.8  # share of edges within a pixel of the fitted tube
 MAX_TUBE_RMS_PX = 0.6  # RMS of those edges
 OUTLINE_FAN_DEG = 70.0  # rays around an end, either side of the centerline's direction
 OUTLINE_STEP_DEG = 10.0
+# A point is bridged when it lies in a stretch of either image without edges longer than this
+# many radii: an end's cap or mount leaves about half of that (10-22 mm), a baseplate or a
+# cable across the arm 35-60 mm (with the chords beside them that are not clean).
+MEASURED_GAP_RADII = 1.2
 MAX_END_BRIDGE_WIDTHS = 1.0  # an end hidden over more than this many arm widths is a guess, not a measurement
 # The fit's covariance overstates the error of a well-seen arm (typically 3-15 mm at the tip, where
 # the error is 1-5 mm) but grows to 40-110 mm where an occluder hides the tip: only that is refused.
@@ -598,7 +603,11 @@ class CenterlineEstimator:
         if self._radius is None:
             self._radius = np.full(RADIUS_BINS, cfg.arm_radius_m)
             self._radius_info = np.full(RADIUS_BINS, 1.0 / RADIUS_PRIOR_SIGMA_M**2)
-        fit = fit_tube(edges, ends, dense, self._radius, 1.0 / np.sqrt(self._radius_info), focal_px=f,
+        # The fit holds each bin's radius only loosely to the learned one: the apparent width of the
+        # tube changes a little with its pose and its shading, and a radius held tighter than a
+        # millimetre pulled depth off with it (late ramp, lab: 1.7 -> 2.2 mm RMSE at 0.03 mm).
+        sigma = np.maximum(1.0 / np.sqrt(self._radius_info), RADIUS_FIT_SIGMA_M)
+        fit = fit_tube(edges, ends, dense, self._radius, sigma, focal_px=f,
                        baseline_m=self._rect.baseline_m, base_prior=self._base.prior, initial_control=warm_control,
                        tip_outline=tip_outline)
         if fit is None:
@@ -613,14 +622,23 @@ class CenterlineEstimator:
         points = fit.points(at)
         self._check_length(points)
         radius = float(np.mean(fit.radius_bins))
-        measured = _measured(at, fit.edge_u, edges.side, 2.0 * radius / max(arc[-1], 1e-9))
+        # The tip's outline, where it was fitted, is seen as well as any edge.
+        seen = [k for k, outline in tip_outline.items() if len(outline) >= MIN_CAP_POINTS]
+        edge_u = np.concatenate([fit.edge_u, np.ones(len(seen))])
+        edge_side = np.concatenate([edges.side, np.array(seen, dtype=edges.side.dtype)])
+        measured = _measured(at, edge_u, edge_side, MEASURED_GAP_RADII * radius / max(arc[-1], 1e-9))
+        if len(seen) == 2:
+            measured[-1] = True  # the tip itself was fitted to its outline in both images
         bridged = _longest_run(~measured, points)
         if bridged > cfg.max_bridge_widths * 2.0 * radius:
             raise _NoArmError(f"{bridged * 1e3:.0f} mm of the arm bridged without its edges in both images "
                               f"(more than {cfg.max_bridge_widths:g} arm widths: occluded or out of view)")
         # Between two measured stretches the fit interpolates; past the last one it extrapolates.
-        for name, run in (("base", _end_run(~measured, points)), ("tip", _end_run(~measured[::-1], points[::-1]))):
-            if run > MAX_END_BRIDGE_WIDTHS * 2.0 * radius:
+        # The base is where the mount is: once the mount is learned, a hidden base is bridged like a middle.
+        base_limit = cfg.max_bridge_widths if self._base.prior is not None else MAX_END_BRIDGE_WIDTHS
+        for name, run, limit in (("base", _end_run(~measured, points), base_limit),
+                                 ("tip", _end_run(~measured[::-1], points[::-1]), MAX_END_BRIDGE_WIDTHS)):
+            if run > limit * 2.0 * radius:
                 raise _NoArmError(f"the {name} is hidden: its last {run * 1e3:.0f} mm have no edges in both images")
         std = fit.point_std_m(at)
         if np.max(std) > MAX_POINT_STD_M:
@@ -791,16 +809,21 @@ def _subpixel_end(image: np.ndarray, offset: np.ndarray, curve: Centerline2D, en
     return curve.points[i] + offsets[0, 1] * direction
 
 
-def _measured(at: np.ndarray, edge_u: np.ndarray, edge_side: np.ndarray, reach_u: float) -> np.ndarray:
-    """(n,) True where both images have silhouette edges within ``reach_u`` of each output u."""
+def _measured(at: np.ndarray, edge_u: np.ndarray, edge_side: np.ndarray, gap_u: float) -> np.ndarray:
+    """(n,) False where an output u falls in a stretch of either image without edges longer than
+    ``gap_u`` (an occluder, a baseplate, the arm hidden at an end), True elsewhere.
+
+    A stretch, not a distance: however the output points fall along the arm, one inside an
+    occluded stretch is bridged, even next to its edge.
+    """
     out = np.ones(len(at), bool)
     for side in (0, 1):
         u = np.sort(edge_u[edge_side == side])
         if len(u) == 0:
             return np.zeros(len(at), bool)
-        i = np.clip(np.searchsorted(u, at), 1, len(u) - 1)
-        nearest = np.minimum(np.abs(u[i - 1] - at), np.abs(u[i] - at))
-        out &= nearest <= reach_u
+        bounds = np.concatenate([[0.0], u, [1.0]])
+        i = np.searchsorted(u, at)  # at lies in (bounds[i], bounds[i + 1])
+        out &= (bounds[i + 1] - bounds[i]) <= gap_u
     return out
 
 

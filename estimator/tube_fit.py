@@ -49,9 +49,11 @@ CAP_SIGMA_PX = 0.7  # an outline point around the tip: an edge, but on a curved 
 MIN_CAP_POINTS = 4  # per image; with fewer the tip keeps its single end point
 OUTLINE_ITERATIONS = 3
 END_SIDES = (0, 1)
+RADIUS_FLOOR_M = 3e-5  # the learned radius is never held more certain than this
 BASE_SIGMA_M = 0.001  # the mount does not move: a learned base point holds to a millimetre
 BASE_DIRECTION_SIGMA = 0.02  # and the arm leaves it in the same direction (radians)
 ITERATIONS = 5
+REDESCEND_AFTER = 2  # iterations under Huber (robust while far off) before gross outliers stop counting
 CONVERGED = 5e-3  # stop once an iteration lowers the cost by less than this fraction
 REASSIGN_AT = (2, 4)  # iterations after which every edge is re-attached to the nearest point of the axis
 CURVE_SAMPLES = 160
@@ -279,7 +281,9 @@ def _normal_equations(knots, control, radii, bins, baseline, focal, kinds, sides
         residuals[i] = res_px
         scaled = res_px / sigmas[i]
         a = abs(res_px)
-        w = 1.0 if a <= huber else huber / a
+        # Huber (huber > 0): beyond the threshold a residual counts linearly; redescending (huber < 0,
+        # Geman-McClure-like): a gross outlier stops counting at all.
+        w = (1.0 if a <= huber else huber / a) if huber > 0.0 else 1.0 / (1.0 + (a / huber) ** 2)
         cost += w * scaled * scaled
         if not want_system:
             continue
@@ -500,9 +504,11 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
     prior_w = 1.0 / np.asarray(radius_sigma, np.float64) ** 2
     bins = radius_bins(knots, control, us, len(radii))
 
+    loss = [HUBER_PX]  # Huber while the fit settles, then redescending (a negative threshold)
+
     def total(control_, radii_, system):
         cost, residuals, A, g = _normal_equations(knots, control_, radii_, bins, baseline_m, focal_px, kinds, sides,
-                                                  us, xs, ys, extras, sigmas, HUBER_PX, system)
+                                                  us, xs, ys, extras, sigmas, loss[0], system)
         x = control_.reshape(-1)
         sx = S @ x * w_smooth
         cost += float(sx @ sx)
@@ -547,6 +553,8 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
         if iteration + 1 in REASSIGN_AT:
             us[:n_edges] = _attach(knots, control, baseline_m, sides[:n_edges], edges.centre, CURVE_SAMPLES)
             bins = radius_bins(knots, control, us, len(radii))
+        if iteration + 1 == REDESCEND_AFTER or (_staged and iteration == 0):
+            loss[0] = -HUBER_PX
         cost, residuals, A, g = total(control, radii, True)
         if damping > 1e6 or converged:
             break
@@ -567,20 +575,27 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
     return TubeFit(knots, control, radii, radius_std, covariance, rms, inliers, us[:n_edges].copy(), edge_res)
 
 
-def fuse_radius(mean: np.ndarray, info: np.ndarray, fit: TubeFit, *, floor_m: float = 0.001,
-                forget: float = 0.995) -> tuple[np.ndarray, np.ndarray]:
+def fuse_radius(mean: np.ndarray, info: np.ndarray, fit: TubeFit, *, floor_m: float = RADIUS_FLOOR_M,
+                forget: float = 0.995, change_sigmas: float = 4.0) -> tuple[np.ndarray, np.ndarray]:
     """The radius profile learned over frames, updated with one fit's measurement.
 
     Each bin fuses the fit's posterior (inverse-variance weights) where the fit measured it well
-    (standard deviation under a millimetre); the accumulated information decays slowly, so a
-    radius that changes with pressure is followed, and never exceeds that of ``floor_m``.
+    (standard deviation under a millimetre), so the noise of many frames averages out. A
+    measurement further from the learned radius than ``change_sigmas`` standard deviations of
+    their difference means the radius changed (a PMA swells with pressure): most of the past is
+    dropped and the bin follows within a frame or two. The information decays slowly and never
+    exceeds that of ``floor_m``.
 
     Returns:
         (mean, information = 1 / variance) per bin.
     """
     info = info * forget
     measured = np.isfinite(fit.radius_std) & (fit.radius_std < 1e-3)
-    w = np.where(measured, 1.0 / np.maximum(fit.radius_std, 1e-5) ** 2, 0.0)
+    std = np.maximum(fit.radius_std, 1e-5)
+    w = np.where(measured, 1.0 / std**2, 0.0)
+    spread = np.sqrt(1.0 / np.maximum(info, 1e-12) + std**2)
+    changed = measured & (np.abs(fit.radius_bins - mean) > change_sigmas * spread)
+    info = np.where(changed, 0.05 * info, info)
     mean = np.where(measured, (mean * info + fit.radius_bins * w) / np.maximum(info + w, 1e-12), mean)
     info = np.minimum(info + w, 1.0 / floor_m**2)
     return mean, info

@@ -55,10 +55,7 @@ def _summary(results, condition):
 
 # Measured failures (default mode, these seeds, estimator at commit 59a18e3), each marked xfail(strict) until fixed.
 # A 9 px pan over the brick wall is the hard case: without the wall the same frames are within 1 mm.
-FALSE_VALID = {
-    "blur": "towards_camera valid with its base 53 mm off in depth (max point-to-curve 41 mm; the first point not "
-            "measured, the base extrapolated from the fit's smoothness prior)",
-}
+FALSE_VALID: dict[str, str] = {}  # blur's base 53 mm off came back valid until a hidden base was refused
 INACCURATE = {"blur": "4 of 5 valid (s_curve: 'barely constrain ... point 0: 42 mm'), pooled RMSE of the valid 5.4 mm "
                       "(towards_camera 9.8, c_bend 2.9, three_d 2.6, straight 2.6)"}
 
@@ -84,10 +81,6 @@ def test_lab_frames_are_valid_and_accurate(default_results, condition):
     assert pooled <= MAX_RMSE_MM[condition], summary
 
 
-@pytest.mark.xfail(strict=True, reason="estimator/pipeline.py _measured (at 59a18e3): a point counts as measured when "
-                                       "both images have an edge within one arm width (50 mm) of it along the axis; "
-                                       "the 12 mm cable hides less, so 4 of the 5 occluded frames call every point "
-                                       "measured (c_bend: point 7 not measured)")
 def test_points_hidden_by_the_occluder_are_not_called_measured(default_results):
     """Where the dark cable crosses the arm, the estimate says a point there was bridged, not seen."""
     checked = 0
