@@ -464,7 +464,13 @@ class StereoRenderer:
                 node.mesh.is_visible = False
             return
         _, (positions, normals, faces), poses = geometry if geometry is not None else self._arm_geometry(shape)
-        self._tube_node = scene.add(self._mesh(positions, normals, faces, self._arm_material), name="arm")
+        # Posed at its own centroid, not at the world origin where the base plate sits: pyrender sorts
+        # nodes by distance and leaves ties to a set's order, which differed between renderers.
+        centroid = positions.mean(axis=0)
+        pose = np.eye(4)
+        pose[:3, 3] = centroid
+        self._tube_node = scene.add(self._mesh(positions - centroid.astype(np.float32), normals, faces,
+                                               self._arm_material), pose=pose, name="arm")
         self._arm_vertices = [positions.astype(np.float64)]
         key = tuple((round(p.radius_m, 9), round(p.thickness_m, 9)) for p in shape.plates)
         if key != self._plate_key:
@@ -791,12 +797,13 @@ class StereoRenderer:
 
 
 _TO_LINEAR = ((np.arange(256) / 255.0) ** _GAMMA).astype(np.float32)
-_FROM_LINEAR = np.clip(np.rint(255.0 * (np.arange(4096) / 4095.0) ** (1.0 / _GAMMA)), 0, 255).astype(np.uint8)
 
 
 def _from_linear(linear: np.ndarray) -> np.ndarray:
-    """Linear light in 0..1 -> display uint8 (a 12-bit table: exact to the display's step)."""
-    return _FROM_LINEAR[np.clip(linear * 4095.0 + 0.5, 0, 4095).astype(np.uint16)]
+    """Linear light in 0..1 -> display uint8, exactly (a table in linear steps loses the dark values:
+    display 1..4 are closer together in linear light than a 12-bit step)."""
+    display = cv2.pow(np.ascontiguousarray(linear, np.float32), 1.0 / _GAMMA)
+    return np.clip(display * 255.0 + 0.5, 0, 255).astype(np.uint8)
 
 
 def _disc_points(plate: Plate, pose: np.ndarray) -> np.ndarray:

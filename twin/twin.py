@@ -131,7 +131,10 @@ class TwinConfig:
                 raise ConfigFileError(f"{path}: key {key}: file {file} not found")
         config = cls(arm, camera, timestep_s, clamp, seed, sides, points, path, scene_file, preset, scene_seed,
                      tolerance)
-        config.scene()  # a bad preset is an error now, naming this file, not when the camera connects
+        try:
+            config.scene()  # a bad preset is an error now, naming this file, not when the camera connects
+        except ConfigFileError as e:
+            raise ConfigFileError(f"{path}: key [scene] preset {preset!r}: {e}") from e
         return config
 
 

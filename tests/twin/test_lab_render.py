@@ -297,9 +297,6 @@ def test_a_moving_arm_blurs_over_the_exposure_and_a_static_one_does_not(small_ri
     assert centre(moving.left) - centre(still.left) == pytest.approx(-0.5 * sweep_px, abs=0.8)
 
 
-@pytest.mark.xfail(strict=True, reason="twin/render.py averages sub-frames through a 12-bit linear table "
-                   "(_from_linear) that is not exact for display values 1..9 (1-4 -> 0, 5 -> 6, 7 -> 8, 9 -> 10): "
-                   "dark pixels change inside the drawn rectangle even when nothing moves (reported)")
 def test_sub_frame_averaging_keeps_dark_static_pixels(small_rig):
     dark = LabScene(preset="dark", backdrop=Backdrop(kind="uniform", surface=Surface((0.02, 0.02, 0.02))),
                     lighting=Lighting(ambient=1.0, lights=()))
@@ -307,6 +304,8 @@ def test_sub_frame_averaging_keeps_dark_static_pixels(small_rig):
     with StereoRenderer(small_rig, scene=dark, effects=CameraEffects(exposure_s=0.02, motion_subframes=4)) as r:
         frame = r.render(shape, t_s=1.0)
     wall = ~np.isfinite(frame.depth_left_m) | (frame.depth_left_m > 1.5)
+    # away from the arm's anti-aliased edge, whose pixels mix the arm's colour but keep the wall's depth
+    wall = cv2.erode(wall.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
     values = np.unique(frame.left[wall])
     assert len(values) == 1, f"a uniformly lit wall shows the values {values}"
 

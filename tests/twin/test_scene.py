@@ -418,8 +418,6 @@ def test_twin_config_with_an_unknown_scene_preset_fails_at_load(tmp_path):
     assert lab.scene() == load_scene(SCENES, "lab", 2)
 
 
-@pytest.mark.xfail(strict=True, reason="twin/twin.py TwinConfig.load passes the scene file's error on as it is: "
-                   "it names scene.toml and the preset, not twin.toml's [scene] preset key (reported)")
 def test_twin_config_with_an_unknown_scene_preset_names_twin_toml(tmp_path):
     for name in ("twin.toml", "arm.toml", "camera.toml", "scene.toml"):
         (tmp_path / name).write_text((MODELS / name).read_text())
