@@ -362,7 +362,7 @@ class StereoRenderer:
         for side in _SIDES:
             self._scene.main_camera_node = self._camera_nodes[side]
             colour, zbuf = self._renderer.render(self._scene)
-            self._canvas[side] = [colour.copy(), zbuf.copy(), None]  # colour, depth, last rect
+            self._canvas[side] = [colour.copy(), zbuf.copy(), None]  # colour, depth, the last frame's rects
             self._static_canvas[side] = (colour.copy(), zbuf.copy())
         self._show_moving(True)
         self._static_raw = {}
@@ -500,6 +500,13 @@ class StereoRenderer:
             out += [local @ T[:3, :3].T + T[:3, 3] for local in locals_]
         return out
 
+    def _moving_vertices_by_object(self, t_s: float) -> list[list[np.ndarray]]:
+        out = []
+        for obj, _, locals_ in self._moving:
+            T = obj.T_world(t_s)
+            out.append([local @ T[:3, :3].T + T[:3, 3] for local in locals_])
+        return out
+
     def _set_moving(self, t_s: float) -> None:
         for obj, nodes, _ in self._moving:
             T = obj.T_world(t_s)
@@ -579,20 +586,23 @@ class StereoRenderer:
         GL.glScissor(*rect)
         return self._renderer.render(self._scene)
 
-    def _paste(self, side: str, rect, colour: np.ndarray, zbuf: np.ndarray | None) -> None:
-        """Put a drawn rectangle into the canvas, restoring the static scene where the last one was."""
+    def _restore(self, side: str) -> None:
+        """Put the static scene back where the last frame drew."""
         canvas = self._canvas[side]
         static_colour, static_depth = self._static_canvas[side]
-        previous = canvas[2]
-        if previous is not None:
-            px, py, pw, ph = previous
+        for px, py, pw, ph in canvas[2] or ():
             canvas[0][py:py + ph, px:px + pw] = static_colour[py:py + ph, px:px + pw]
             canvas[1][py:py + ph, px:px + pw] = static_depth[py:py + ph, px:px + pw]
+        canvas[2] = []
+
+    def _paste(self, side: str, rect, colour: np.ndarray, zbuf: np.ndarray | None) -> None:
+        """Put a drawn rectangle into the canvas (after ``_restore`` for the frame)."""
+        canvas = self._canvas[side]
         x, y, w, h = rect
         canvas[0][y:y + h, x:x + w] = colour
         if zbuf is not None:
             canvas[1][y:y + h, x:x + w] = zbuf
-        canvas[2] = rect
+        canvas[2].append(rect)
 
     def _raw_roi(self, side: str) -> tuple[int, int, int, int] | None:
         """(x0, y0, x1, y1) raw pixels whose rays land in this frame's drawn canvas rectangle.
@@ -603,7 +613,15 @@ class StereoRenderer:
         """
         if not self._fast_readback:
             return None
-        x, y_up, w, h = self._canvas[side][2]
+        boxes = [self._raw_box(side, rect) for rect in self._canvas[side][2]]
+        if not boxes:
+            return 0, 0, 0, 0
+        return (min(b[0] for b in boxes), min(b[1] for b in boxes), max(b[2] for b in boxes),
+                max(b[3] for b in boxes))
+
+    def _raw_box(self, side: str, rect) -> tuple[int, int, int, int]:
+        """The raw pixels whose rays land in one canvas rectangle (see ``_raw_roi``)."""
+        x, y_up, w, h = rect
         height = self._canvas_size[1]
         top = height - (y_up + h)  # top-down canvas rows
         t = np.linspace(0.0, 1.0, 24)
@@ -621,21 +639,21 @@ class StereoRenderer:
         y1 = int(np.clip(np.ceil(uv[:, 1].max()) + 3, 0, H))
         return x0, y0, x1, y1
 
-    def _to_raw(self, side: str, canvas: np.ndarray, bottom_up: bool) -> tuple[np.ndarray, tuple | None]:
-        """The distorted raw optical image and the raw region that differs from the static scene."""
+    def _to_raw(self, side: str, canvas: np.ndarray, bottom_up: bool) -> tuple[np.ndarray, list | None]:
+        """The distorted raw optical image and the raw regions that differ from the static scene."""
         eye = self._eyes[side]
         if not bottom_up:
             canvas = np.ascontiguousarray(canvas[::-1])
-        roi = self._raw_roi(side)
-        if roi is None:
+        if not self._fast_readback:
             return cv2.remap(canvas, eye.map1, eye.map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE), None
-        # Only the region that can show something new is resampled; the rest is the static scene.
+        # Only the regions that can show something new are resampled; the rest is the static scene.
         out = self._static_raw[side].copy()
-        x0, y0, x1, y1 = roi
-        if x1 > x0 and y1 > y0:
-            out[y0:y1, x0:x1] = cv2.remap(canvas, eye.map1[y0:y1, x0:x1], eye.map2[y0:y1, x0:x1],
-                                          cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        return out, roi
+        boxes = [self._raw_box(side, rect) for rect in self._canvas[side][2]]
+        for x0, y0, x1, y1 in boxes:
+            if x1 > x0 and y1 > y0:
+                out[y0:y1, x0:x1] = cv2.remap(canvas, eye.map1[y0:y1, x0:x1], eye.map2[y0:y1, x0:x1],
+                                              cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        return out, boxes
 
     def _depth_to_raw(self, zbuf: np.ndarray, bottom_up: bool) -> np.ndarray:
         eye = self._eyes["left"]
@@ -721,31 +739,39 @@ class StereoRenderer:
         zbuf = None
         t1 = time.perf_counter()
         if self._fast_readback:
-            vertices = list(self._prop_vertices)
+            # One rectangle for the arm (and props), one per moving object; rectangles that overlap
+            # much are merged. A cable crossing the whole view costs a thin strip, not a union box.
+            groups: list[list[np.ndarray]] = [list(self._prop_vertices)]
+            groups += [[] for _ in self._moving]
             for geometry, tau in subframes:
                 if geometry is not None:
-                    vertices.append(geometry[1][0].astype(np.float64))
-                    vertices += [_disc_points(plate, pose) for plate, pose in zip(geometry[0].plates, geometry[2],
-                                                                                  strict=True)]
-                vertices += self._moving_vertices(tau)
-            rects = {side: self._drawn_rect(side, vertices) for side in _SIDES}
-            sums: dict[str, np.ndarray] = {}
+                    groups[0].append(geometry[1][0].astype(np.float64))
+                    groups[0] += [_disc_points(plate, pose) for plate, pose in zip(geometry[0].plates, geometry[2],
+                                                                                   strict=True)]
+                for g, vertices in enumerate(self._moving_vertices_by_object(tau)):
+                    groups[1 + g] += vertices
+            rects = {side: _merged_rects([self._drawn_rect(side, g) for g in groups if g]) for side in _SIDES}
+            sums: dict[tuple[str, int], np.ndarray] = {}
+            for side in _SIDES:
+                self._restore(side)
             for k, (geometry, tau) in enumerate(subframes):
                 self._set_arm(None if geometry is None else geometry[0], geometry)
                 self._set_moving(tau)
                 last = k == len(subframes) - 1
                 for side in _SIDES:
-                    start = time.perf_counter()
-                    colour, z = self._render_region(side, rects[side], depth and last and side == "left")
-                    gl[side] += time.perf_counter() - start
-                    if accumulate:
-                        linear = _TO_LINEAR[colour]
-                        sums[side] = linear if k == 0 else sums[side] + linear
+                    for j, rect in enumerate(rects[side]):
+                        start = time.perf_counter()
+                        colour, z = self._render_region(side, rect, depth and last and side == "left")
+                        gl[side] += time.perf_counter() - start
+                        if accumulate:
+                            linear = _TO_LINEAR[colour]
+                            sums[side, j] = linear if k == 0 else sums[side, j] + linear
+                            if last:
+                                colour = _from_linear(sums[side, j] / len(subframes))
                         if last:
-                            colour = _from_linear(sums[side] / len(subframes))
-                    if last:
-                        self._paste(side, rects[side], colour, z)
-                        zbuf = self._canvas["left"][1] if side == "left" else zbuf
+                            self._paste(side, rect, colour, z)
+                    if last and side == "left":
+                        zbuf = self._canvas["left"][1]
             for side in _SIDES:
                 canvases[side] = self._canvas[side][0]
         else:
@@ -804,6 +830,29 @@ def _from_linear(linear: np.ndarray) -> np.ndarray:
     display 1..4 are closer together in linear light than a 12-bit step)."""
     display = cv2.pow(np.ascontiguousarray(linear, np.float32), 1.0 / _GAMMA)
     return np.clip(display * 255.0 + 0.5, 0, 255).astype(np.uint8)
+
+
+def _merged_rects(rects: list[tuple[int, int, int, int]]) -> list[tuple[int, int, int, int]]:
+    """Bottom-up (x, y, w, h) rectangles, merged while two of them overlap or a merge costs little more
+    area than drawing them apart; empty (1 x 1) rectangles dropped."""
+    rects = [r for r in rects if r[2] > 1 and r[3] > 1]
+    merged = True
+    while merged and len(rects) > 1:
+        merged = False
+        for a in range(len(rects)):
+            for b in range(a + 1, len(rects)):
+                ax, ay, aw, ah = rects[a]
+                bx, by, bw, bh = rects[b]
+                x0, y0 = min(ax, bx), min(ay, by)
+                x1, y1 = max(ax + aw, bx + bw), max(ay + ah, by + bh)
+                if (x1 - x0) * (y1 - y0) <= 1.3 * (aw * ah + bw * bh):
+                    rects[a] = (x0, y0, x1 - x0, y1 - y0)
+                    del rects[b]
+                    merged = True
+                    break
+            if merged:
+                break
+    return rects or [(0, 0, 1, 1)]
 
 
 def _disc_points(plate: Plate, pose: np.ndarray) -> np.ndarray:

@@ -264,10 +264,10 @@ class SensorSimulator:
         """
         return self.noisy(self.clean(raw, static_done, box), rng)
 
-    def clean(self, raw: np.ndarray, static_done: np.ndarray | None = None,
-              box: tuple[int, int, int, int] | None = None) -> np.ndarray:
+    def clean(self, raw: np.ndarray, static_done: np.ndarray | None = None, box=None) -> np.ndarray:
         """The deterministic stages only (blur, shake, vignetting and gain; no noise, no YUYV): what
-        :meth:`noisy` turns into the delivered image. Arguments as for :meth:`apply`."""
+        :meth:`noisy` turns into the delivered image. Arguments as for :meth:`apply`; ``box`` may also
+        be a list of boxes (each region that changed, e.g. the arm and a cable crossing the view)."""
         if self.effects.legacy:
             return self.deterministic(raw)
         if static_done is None or box is None:
@@ -275,14 +275,14 @@ class SensorSimulator:
         image = static_done.copy()
         h, w = raw.shape[:2]
         m = self.margin_px
-        x0, y0, x1, y1 = box
-        X0, Y0, X1, Y1 = max(x0 - 2 * m, 0), max(y0 - 2 * m, 0), min(x1 + 2 * m, w), min(y1 + 2 * m, h)
-        if X1 > X0 and Y1 > Y0:
-            region = self.deterministic(np.ascontiguousarray(raw[Y0:Y1, X0:X1]))
-            ix0, iy0 = max(x0 - m, X0), max(y0 - m, Y0)
-            ix1, iy1 = min(x1 + m, X1), min(y1 + m, Y1)
-            inner = region[iy0 - Y0:iy1 - Y0, ix0 - X0:ix1 - X0]
-            image[iy0:iy1, ix0:ix1] = self._gain(np.ascontiguousarray(inner), (ix0, iy0, ix1, iy1))
+        for x0, y0, x1, y1 in ([box] if isinstance(box, tuple) else box):
+            X0, Y0, X1, Y1 = max(x0 - 2 * m, 0), max(y0 - 2 * m, 0), min(x1 + 2 * m, w), min(y1 + 2 * m, h)
+            if X1 > X0 and Y1 > Y0:
+                region = self.deterministic(np.ascontiguousarray(raw[Y0:Y1, X0:X1]))
+                ix0, iy0 = max(x0 - m, X0), max(y0 - m, Y0)
+                ix1, iy1 = min(x1 + m, X1), min(y1 + m, Y1)
+                inner = region[iy0 - Y0:iy1 - Y0, ix0 - X0:ix1 - X0]
+                image[iy0:iy1, ix0:ix1] = self._gain(np.ascontiguousarray(inner), (ix0, iy0, ix1, iy1))
         return image
 
     def noisy(self, clean: np.ndarray, rng: np.random.Generator | None = None) -> np.ndarray:
