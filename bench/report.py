@@ -662,7 +662,9 @@ def _write_markdown(run: Run, compensation: dict | None, written: Mapping[str, s
         lines += ["", "## Where the time went (wall-clock seconds)", "",
                   "| " + " | ".join(bench_s) + " | loop total |", "|" + "---|" * (len(bench_s) + 1),
                   "| " + " | ".join(f"{v:.1f}" for v in bench_s.values()) + f" | {wall_s:.1f} |",
-                  "", "record_thread runs beside the loop (PNG encoding); record_wait is the loop waiting for it."]
+                  "", "physics, render (or grab) and truth are the capture loop; estimate and score run beside it in "
+                  "the estimating thread (estimate_wait: the loop waiting for it); record_thread is the writer thread "
+                  "(record_wait: the estimating thread waiting for it)."]
     if s.get("invalid_reasons"):
         lines += ["", "## Invalid frames", "", "Grouped by reason, measurements replaced by #:", ""]
         lines += [f"- {line}" for line in invalid_lines(s)]

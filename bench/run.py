@@ -50,6 +50,7 @@ from bench.frame_record import FrameRecord
 from bench.process import process
 from bench.recording import RunWriter, human_bytes, jsonable, new_run_folder, point_latest, summarize_run
 from bench.scoring import invalid_lines, summary_table
+from bench.worker import FrameWorker
 from estimator import CalibrationFileError, CenterlineEstimator, EstimatorConfig
 from hardware.errors import DeviceError, EndOfStreamError, SimulationError
 
@@ -322,7 +323,7 @@ def _run_loop(config, options, schedule, est_configs, devices: Devices, writer: 
     """
     calibration = devices.camera.calibration
     records: list[FrameRecord] = []
-    totals: dict[str, float] = {"estimate": 0.0, "score": 0.0, "record_wait": 0.0}
+    totals: dict[str, float] = {"estimate": 0.0, "score": 0.0, "record_wait": 0.0, "estimate_wait": 0.0}
     stopped: str | None = None
     exit_code = EXIT_OK
     stats = {"dropped": 0}
@@ -337,8 +338,20 @@ def _run_loop(config, options, schedule, est_configs, devices: Devices, writer: 
                 break
             estimator.warm_up()
         progress = _progress(schedule.frames, options.progress, writer.folder)
+
+        def record_frame(capture) -> None:  # in the worker thread, frame after frame
+            record = process(capture, estimators, calibration)
+            stored = capture.stored
+            start = time.perf_counter()
+            writer.submit(record, stored.left, stored.right, stored.depth_units, stored.noise)
+            totals["record_wait"] += time.perf_counter() - start
+            _add_timings(totals, record.bench_ms)
+            records.append(record)
+            _update_progress(progress, record)
+
         loop_start = time.perf_counter()
         frames = captures(devices, schedule, config.experiment, stop, stats)
+        worker = FrameWorker(record_frame, depth=WORKER_DEPTH, name="estimate-record")
         try:
             for capture in frames:
                 if stop.came_before(capture.started_at):
@@ -346,16 +359,15 @@ def _run_loop(config, options, schedule, est_configs, devices: Devices, writer: 
                 # A fault the valves recorded in the background (a lost link, the board's watchdog
                 # vent, an e-stop) stops the run here, before a frame taken after it is recorded.
                 _check_valves(devices.valves)
-                record = process(capture, estimators, calibration)
-                stored = capture.stored
                 start = time.perf_counter()
-                writer.submit(record, stored.left, stored.right, stored.depth_units, stored.noise)
-                totals["record_wait"] += time.perf_counter() - start
-                _add_timings(totals, record.bench_ms)
-                records.append(record)
-                _update_progress(progress, record)
-        finally:
+                worker.put(capture)  # estimated and recorded beside the next capture
+                totals["estimate_wait"] += time.perf_counter() - start
+        except BaseException:
             frames.close()  # stops and joins the pressure thread, on every path, before the devices close
+            worker.close()  # the frames captured so far are still estimated and recorded
+            raise
+        frames.close()
+        worker.finish()
         if stop:
             stopped = stop.reason
             exit_code = _SIGNAL_EXIT.get(stop.signum, EXIT_FAILED)
@@ -415,6 +427,8 @@ def _check_valves(valves) -> None:
         raise ValveFaultError(e) from e
 
 
+# Captured frames that may wait for the estimator (each a stereo pair: ~6 MB at 1280x720).
+WORKER_DEPTH = 2
 # Errors that end a run cleanly (the frames so far are kept): device faults (the twin's instability is
 # one), failed writes (a full disk).
 STOP_ERRORS: tuple[type[BaseException], ...] = (DeviceError, OSError)

@@ -242,3 +242,46 @@ def test_a_new_estimator_on_the_recorded_frames_sees_the_captured_images(tmp_pat
         again = process(capture, {"main": estimator}, run.calibration)
         np.testing.assert_array_equal(again.main.points_m, record.main.points_m)
         assert again.main.errors == record.main.errors and again.main.qprime == record.main.qprime
+
+
+# --- estimating beside the loop ----------------------------------------------------------------
+
+
+def test_the_worker_handles_items_in_order_beside_the_producer_and_hands_back_its_error():
+    import threading
+
+    from bench.worker import FrameWorker
+
+    seen, threads = [], set()
+    gate = threading.Event()
+
+    def handle(item):
+        gate.wait(10)
+        threads.add(threading.current_thread().name)
+        seen.append(item)
+
+    with FrameWorker(handle, depth=2, name="estimate-record") as worker:
+        for item in range(3):  # one in hand, two queued: the producer goes on while the first is handled
+            worker.put(item)
+        assert seen == []
+        gate.set()
+        for item in range(3, 6):
+            worker.put(item)
+        worker.finish()
+    assert seen == list(range(6)) and threads == {"estimate-record"}
+
+    def fail_on_two(item):
+        if item == 2:
+            raise OSError(28, "No space left on device")
+        seen.append(item)
+
+    seen.clear()
+    worker = FrameWorker(fail_on_two, depth=1)
+    with pytest.raises(OSError, match="No space left"):
+        for item in range(50):
+            worker.put(item)
+    worker.close()
+    assert seen == [0, 1]  # nothing after the failure is handled
+    worker.finish()  # the error was handed over once; closing again is harmless
+    with pytest.raises(ValueError, match="depth"):
+        FrameWorker(handle, depth=0)
