@@ -197,3 +197,20 @@ def test_runs_go_under_the_working_directory(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     root = load_bench_config().recording.runs_root()
     assert root == tmp_path / "runs" and Path.cwd() == tmp_path
+
+
+def test_the_wheel_ships_the_models_and_nothing_finds_them_by_the_checkout():
+    """`pip install .` must work from any folder: models/ is a package whose TOML files are package data,
+    read through importlib.resources, never through the checkout's layout (``parents[1] / "models"``)."""
+    from importlib.resources import files
+
+    repo = Path(__file__).resolve().parents[2]
+    project = tomllib.loads((repo / "pyproject.toml").read_text())["tool"]["setuptools"]
+    assert "models" in project["packages"]["find"]["include"] and project["package-data"]["models"] == ["*.toml"]
+    shipped = sorted(p.name for p in (repo / "models").glob("*.toml"))
+    assert {"arm.toml", "bench.toml", "bench_rig.toml", "camera.toml", "scene.toml", "twin.toml"} <= set(shipped)
+    assert all((files("models") / name).is_file() for name in shipped)
+    for package in ("estimator", "hardware", "twin", "bench"):
+        for path in (repo / package).rglob("*.py"):
+            text = path.read_text()
+            assert '"models"' not in text.replace('files("models")', ""), f"{path} finds models/ by the checkout"
