@@ -41,19 +41,29 @@ def corridor(shape: tuple[int, int], curve_px: np.ndarray, half_width_px: float)
     return out
 
 
-def keep_in_corridor(mask: np.ndarray, curve_px: np.ndarray, reach_px: float, clip_px: float) -> np.ndarray:
+def keep_in_corridor(mask: np.ndarray, curve_px: np.ndarray, reach_px: float, clip_px: float,
+                     with_cut: bool = False):
     """The components of ``mask`` that come within ``reach_px`` of the previous centerline,
-    cut to within ``clip_px`` of it (a distractor the arm touches is cut off at the corridor)."""
+    cut to within ``clip_px`` of it (a distractor the arm touches is cut off at the corridor).
+
+    With ``with_cut``, also returns what the cut removed (uint8 mask): much of it, or any of it
+    next to the curve's ends, means a distractor touches the arm or the arm itself left the
+    corridor (a fast swing of the tip), and the caller should look for the arm afresh.
+    """
     labels_count, labels = cv2.connectedComponents(mask, connectivity=8)
     near = corridor(mask.shape, curve_px, reach_px) > 0
     touching = np.unique(labels[near & (mask > 0)])
     touching = touching[touching > 0]
     if len(touching) == 0:
-        return np.zeros_like(mask)
+        empty = np.zeros_like(mask)
+        return (empty, empty) if with_cut else empty
     keep = np.zeros(labels_count, bool)
     keep[touching] = True
     kept = np.where(keep[labels], 255, 0).astype(np.uint8)
-    return cv2.bitwise_and(kept, corridor(mask.shape, curve_px, clip_px))
+    clipped = cv2.bitwise_and(kept, corridor(mask.shape, curve_px, clip_px))
+    if not with_cut:
+        return clipped
+    return clipped, cv2.subtract(kept, clipped)
 
 
 @dataclass(frozen=True)

@@ -64,7 +64,10 @@ MAX_POINT_STD_M = 0.04
 # Starting the fit from the previous frame's tube saves the disparity profile but measured worse
 # (2.8 against 2.2 mm on a late-ramp stretch of the twin): the profile starts it better.
 WARM_START_TUBE = False
+MIN_CLEAN_CHORDS = 0.9  # below this share of clean chords after one refinement pass, a second one runs
 REFINE_PASSES = 1  # chord passes of the 2D refinement (the tube fit does the sub-pixel work since)
+MAX_CORRIDOR_CUT = 0.1  # share of the arm-coloured pixels touching the corridor that it may cut away
+MAX_UNCOVERED = 0.01  # share of arm samples a warm-started chain may leave further than a width from it
 EDGE_STRIDE = 1  # every sample of the 2D centerline (3 px apart); every second gave 1.84 mm, not 1.42, on the late ramp
 SIDES = ("left", "right")
 
@@ -314,6 +317,11 @@ class CenterlineEstimator:
             warm = self._warm[side]
             hint = self._base_hint - offset if (side == "left" and self._base_hint is not None) else None
             nodes = centerline_nodes(mask, samples, cfg, warm=None if warm is None else warm - offset, base_hint=hint)
+            # A chain started from the last frame may not follow a fast swing to its end: if arm
+            # pixels lie far from it, start this image over from its skeleton.
+            if (warm is not None and cfg.mode == "default" and side in self._track
+                    and _uncovered(samples, nodes, self._track[side][0] * self._scale) > MAX_UNCOVERED):
+                nodes = centerline_nodes(mask, samples, cfg, warm=None, base_hint=hint)
             if len(nodes) < 3:
                 raise _NoArmError(f"no centerline found in the {side} image")
         curve = None
@@ -324,6 +332,10 @@ class CenterlineEstimator:
                 # The SOM's chain is close to the axis; the baselines' zig-zag needs a second pass.
                 passes = REFINE_PASSES if cfg.centerline == "som" else 2
                 curve = refine_centerline(mask, nodes, extend_ends=cfg.extend_ends, iterations=passes)
+                if passes < 2 and curve is not None and curve.valid.mean() < MIN_CLEAN_CHORDS:
+                    # Nodes that lag a fast swing leave the chords oblique near the tip: a second pass,
+                    # with normals from the first, straightens them.
+                    curve = refine_centerline(mask, nodes, extend_ends=cfg.extend_ends, iterations=2)
                 if curve is None:
                     raise _NoArmError(f"the {side} centerline does not follow the silhouette")
                 width = 2.0 * float(np.nanmedian(curve.half_width_px))
@@ -455,9 +467,19 @@ class CenterlineEstimator:
             # Half the tube's width plus how far it may move in a frame: a distractor the arm touches
             # is cut off at the corridor's edge.
             reach = 0.5 * width + max(0.5 * width, 3.0)
-            kept = keep_in_corridor(gate[side], _extended(curve, width), reach, reach)
+            kept, cut = keep_in_corridor(gate[side], _extended(curve, width), reach, reach, with_cut=True)
             if np.count_nonzero(kept) < 0.8 * area:
                 return None
+            cut_px = np.count_nonzero(cut)
+            if cut_px > MAX_CORRIDOR_CUT * np.count_nonzero(kept):
+                return None
+            if cut_px:
+                # Arm-coloured pixels cut off next to an end: the tip (or the arm) swung out of the corridor.
+                ends = np.zeros_like(cut)
+                for end in (curve[0], curve[-1]):
+                    cv2.circle(ends, (int(round(end[0])), int(round(end[1]))), int(round(2.5 * width)), 255, -1)
+                if np.count_nonzero(cv2.bitwise_and(cut, ends)) > 0.25 * width * width:
+                    return None
             keep[side] = kept
         return keep
 
@@ -541,7 +563,7 @@ class CenterlineEstimator:
             ramp = base_ramp(left, BASE_SKIP_WIDTHS, BASE_RAMP_WIDTHS)
             weight = np.where(left.valid, weight, 0.0) * ramp
             if np.count_nonzero(weight > 0.05) < max(8, len(tau) // 5):
-                raise _NoArmError("left and right centerlines do not match row by row")
+                raise _NoArmError("left and right centerlines do not match row by row" + _length_mismatch(left, right))
             self._check_single_tube(disparity, weight, left)
             x, y, w = with_width_cue(tau, disparity, weight, left, ramp)
             knots = int(np.clip(left.arc_px[-1] / 30.0, 3, 30))
@@ -807,6 +829,31 @@ def _subpixel_end(image: np.ndarray, offset: np.ndarray, curve: Centerline2D, en
     if not np.isfinite(offsets[0, 1]):
         return curve.points[end]
     return curve.points[i] + offsets[0, 1] * direction
+
+
+def _length_mismatch(left: Centerline2D, right: Centerline2D) -> str:
+    """Why two centerlines may not match: one much shorter than the other (a fold or an occluder
+    hides part of the arm in that image); empty when their lengths agree."""
+    lengths = {"left": float(left.arc_px[-1]), "right": float(right.arc_px[-1])}
+    short = min(lengths, key=lengths.get)
+    ratio = lengths[short] / max(max(lengths.values()), 1e-9)
+    if ratio >= 0.75:
+        return ""
+    return (f": the {short} one is {ratio:.0%} as long as the other (part of the arm is not visible in the "
+            f"{short} image: folded over itself or hidden)")
+
+
+def _uncovered(samples: np.ndarray, nodes: np.ndarray, width_px: float) -> float:
+    """Share of the arm's samples further than one arm width from the node chain."""
+    if len(samples) == 0 or len(nodes) < 2 or width_px <= 0:
+        return 0.0
+    a, b = nodes[:-1], nodes[1:]
+    ab = b - a
+    t = np.clip(((samples[:, None, :] - a[None]) * ab[None]).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-12)[None],
+                0.0, 1.0)
+    closest = a[None] + t[..., None] * ab[None]
+    distance = np.sqrt(((samples[:, None, :] - closest) ** 2).sum(-1)).min(axis=1)
+    return float(np.mean(distance > width_px))
 
 
 def _measured(at: np.ndarray, edge_u: np.ndarray, edge_side: np.ndarray, gap_u: float) -> np.ndarray:
