@@ -8,12 +8,17 @@ of every frame is scored against the exact backbone (point to curve) and binned 
 along the arm and by the angle its 2D centerline makes with the rows in the left image.
 
 Writes ``accuracy.csv`` (one row per point: frame, estimator, arc fraction, angle, errors),
-``accuracy_along_arm.png``, ``accuracy_vs_row_angle.png`` and ``accuracy.md``.
+``accuracy_along_arm.png``, ``accuracy_vs_row_angle.png`` and ``accuracy.md``; ``softarm study accuracy``
+adds the studies' ``results.csv`` (one row per estimator) and ``study.json``. Each estimator runs as
+an episode of its own (``bench.episodes``) on the study's engine: the configured experiment and scene
+rendered by its own twin, every frame through the bench's frame path.
 """
 
 from __future__ import annotations
 
 import csv
+import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -43,22 +48,26 @@ def point_errors(frames: Sequence, calibration: StereoCalibration, base: Estimat
         estimator = CenterlineEstimator(calibration, base.replace(**changes))
         for index, frame in enumerate(frames):
             result = estimator.estimate(frame.left, frame.right)
-            if not result.valid:
-                rows.append({"frame": index, "variant": name, "point": -1, "valid": False, "reason": result.reason})
-                continue
-            closest, _ = closest_points_on_polyline(result.points, np.asarray(frame.gt_m))
-            error = (result.points - closest) * 1e3
-            uv = result.left_uv
-            step = np.gradient(uv, axis=0)
-            angle = np.degrees(np.arctan2(np.abs(step[:, 1]), np.abs(step[:, 0])))
-            arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(result.points, axis=0), axis=1))])
-            fraction = arc / max(arc[-1], 1e-12)
-            for k in range(len(result.points)):
-                rows.append({"frame": index, "variant": name, "point": k, "valid": True, "reason": "",
-                             "arc_fraction": float(fraction[k]), "row_angle_deg": float(angle[k]),
-                             "error_mm": float(np.linalg.norm(error[k])), "x_mm": float(error[k, 0]),
-                             "y_mm": float(error[k, 1]), "z_mm": float(error[k, 2])})
+            rows += point_rows(index, name, result.valid, result.reason, result.points, result.left_uv, frame.gt_m)
     return rows
+
+
+def point_rows(index: int, variant: str, valid: bool, reason: str | None, points: np.ndarray, left_uv: np.ndarray,
+               gt_m: np.ndarray) -> list[dict]:
+    """The rows of one estimate: one per point (a single row with point -1 when the frame is invalid)."""
+    if not valid:
+        return [{"frame": index, "variant": variant, "point": -1, "valid": False, "reason": reason}]
+    points = np.asarray(points, float)
+    closest, _ = closest_points_on_polyline(points, np.asarray(gt_m))
+    error = (points - closest) * 1e3
+    step = np.gradient(np.asarray(left_uv, float), axis=0)
+    angle = np.degrees(np.arctan2(np.abs(step[:, 1]), np.abs(step[:, 0])))
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    fraction = arc / max(arc[-1], 1e-12)
+    return [{"frame": index, "variant": variant, "point": k, "valid": True, "reason": "",
+             "arc_fraction": float(fraction[k]), "row_angle_deg": float(angle[k]),
+             "error_mm": float(np.linalg.norm(error[k])), "x_mm": float(error[k, 0]),
+             "y_mm": float(error[k, 1]), "z_mm": float(error[k, 2])} for k in range(len(points))]
 
 
 def binned_rmse(rows: list[dict], variant: str, key: str, bins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -138,3 +147,82 @@ def write_accuracy_study(rows: list[dict], out: Path, frames: int) -> list[str]:
         lines += ["", f"![{title}]({name})"]
     (out / "accuracy.md").write_text("\n".join(lines) + "\n")
     return headline
+
+
+# --- softarm study accuracy ----------------------------------------------------------------------
+
+
+def variant_summary(rows: list[dict], variant: str, frames: int) -> dict:
+    """One ``results.csv`` row: a variant's valid frames and pooled point errors."""
+    points = [r for r in rows if r["variant"] == variant and r["valid"]]
+    e = np.array([r["error_mm"] for r in points])
+    axes = [float(np.sqrt(np.mean(np.square([r[k] for r in points])))) if points else float("nan")
+            for k in ("x_mm", "y_mm", "z_mm")]
+    return {"variant": variant, "frames": frames, "valid": len({r["frame"] for r in points}),
+            "rmse_mm": float(np.sqrt(np.mean(e**2))) if len(e) else float("nan"), "rmse_x_mm": axes[0],
+            "rmse_y_mm": axes[1], "rmse_z_mm": axes[2], "max_mm": float(e.max()) if len(e) else float("nan")}
+
+
+def accuracy_command(args) -> int:
+    """``softarm study accuracy [--frames N] [--out DIR] [--engine local|ray] [--workers N]``: each variant an
+    episode of the configured experiment (all its frames unless --frames), in the configured scene."""
+    from bench.config import ConfigError, load_bench_config
+    from bench.engines import EngineError, engine_from_args, run_episodes, workers_used
+    from bench.episodes import sequence_episode, sequence_spec
+    from bench.frame_record import FrameRecord
+    from bench.study_files import out_folder, write_results, write_study
+    from twin.twin import TwinConfig
+
+    try:
+        config = load_bench_config(getattr(args, "config", None))
+        engine = engine_from_args(args)
+        twin = TwinConfig.load(config.sim.twin)
+    except (ConfigError, ValueError) as e:
+        print(f"softarm study accuracy: {e}", file=sys.stderr)
+        return 2
+    frames = getattr(args, "frames", None)
+    frames = config.experiment.frames if frames is None else frames
+    if not 1 <= frames <= 100_000:
+        print(f"softarm study accuracy: --frames {frames}: expected 1 to 100000", file=sys.stderr)
+        return 2
+    out = out_folder(args, config, "accuracy")
+    base = config.estimator_config(mode="default")
+    specs = [sequence_spec(config, frames=frames, preset=twin.scene_preset, scene_seed=twin.scene_seed,
+                           estimators={"main": base.replace(**changes).as_dict()}, tag=name)
+             for name, changes in VARIANTS.items()]
+    print(f"softarm study accuracy: {len(specs)} estimators x {frames} frames on the {engine.name} engine ...",
+          flush=True)
+    start = time.perf_counter()
+    try:
+        outcomes = run_episodes(sequence_episode, specs, engine, label="accuracy",
+                                progress=not getattr(args, "no_progress", False))
+    except EngineError as e:
+        print(f"softarm study accuracy: {e}; nothing written", file=sys.stderr)
+        return 1
+    wall_s = time.perf_counter() - start
+    rows = []
+    for outcome in outcomes:
+        if not outcome.ok:
+            print(f"softarm study accuracy: {outcome.spec.tag}: the episode failed twice: {outcome.error}",
+                  file=sys.stderr)
+            continue
+        for index, record_json in enumerate(outcome.result["records"]):
+            record = FrameRecord.from_json(record_json)
+            m = record.main
+            rows += point_rows(index, outcome.spec.tag, m.valid, m.reason, m.points_m, m.left_uv, record.gt_m)
+    try:
+        headline = write_accuracy_study(rows, out, frames)
+        write_results(out, [variant_summary(rows, name, frames) for name in VARIANTS],
+                      ("variant", "frames", "valid", "rmse_mm", "rmse_x_mm", "rmse_y_mm", "rmse_z_mm", "max_mm"))
+        write_study(out, study="accuracy", engine=engine, workers=workers_used(engine, len(specs)), outcomes=outcomes,
+                    wall_s=wall_s, configuration={"config": str(config.path), "experiment": config.experiment,
+                                                  "frames": frames, "scene": twin.scene_preset,
+                                                  "variants": VARIANTS, "estimator": base.as_dict()},
+                    seeds={"render_noise": twin.seed, "scene": twin.scene_seed, "som": base.som_seed})
+    except OSError as e:
+        print(f"softarm study accuracy: cannot write the study to {out}: {e}", file=sys.stderr)
+        return 1
+    print(f"softarm study accuracy: wrote {out}")
+    for line in headline:
+        print(line)
+    return 0 if all(o.ok for o in outcomes) else 1

@@ -81,13 +81,23 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("--out", help="output folder; default runs/replay_<timestamp> under the working directory "
                         "(runs/latest then points to it)")
 
-    study = add("study", "Regenerate the paper's SOM parameter study or the centerline comparison.",
-                "softarm study som --out runs/som_study")
-    study.add_argument("which", choices=("som", "compare"))
+    study = add("study", "Run a study on the twin: the paper's SOM study or centerline comparison, robustness in lab "
+                "scenes, a parameter sweep or the accuracy along the arm; on this machine or on Ray.",
+                "softarm study robustness --frames 60 --workers 2   (or: som, compare, sweep --grid FILE, accuracy)")
+    study.add_argument("which", choices=("som", "compare", "robustness", "sweep", "accuracy"))
     study.add_argument("--config", help="bench config (TOML); default models/bench.toml")
-    study.add_argument("--frames", type=int, help="number of twin frames to study")
+    study.add_argument("--frames", type=int, help="twin frames to study (robustness: per condition)")
     study.add_argument("--out", help="output folder; default runs/study_<which>_<timestamp> under the working "
                        "directory")
+    study.add_argument("--conditions", nargs="+", metavar="PRESET[:SEED]",
+                       help="robustness: scene presets to run (default: clean lab dim bright_warm blur occluded "
+                       "random)")
+    study.add_argument("--grid", metavar="FILE.toml", help="sweep: the parameters and scenes to sweep")
+    study.add_argument("--engine", choices=("local", "ray"), default="local",
+                       help="where episodes run: a process pool here (default) or Ray tasks")
+    study.add_argument("--workers", type=int, help="episodes at once (default: every CPU here, or of the Ray cluster)")
+    study.add_argument("--ray-address", metavar="HOST:PORT", help="the Ray cluster to use (with --engine ray); "
+                       "default: a local Ray started for the study")
 
     calibrate = add("calibrate", "Calibrate the stereo camera from checkerboard views and write a calibration file.",
                     "softarm calibrate --out calib.toml")

@@ -20,7 +20,14 @@ an ordered skeleton walk: their 2D nodes on the left image (Figs 7, 8), topology
 errors, the 3D accuracy each gives through the whole pipeline (paper and default mode) and the
 time per frame.
 
-Each study writes PNG plots, ``<study>.md`` and ``<study>.json`` to its folder.
+Each study writes PNG plots, ``<study>.md`` and ``<study>.json`` to its folder, and the schema every
+study shares (``bench.study_files``): ``results.csv`` (som: one row per point of each Fig 5 curve under
+each clock; compare: one row per method and mode) and ``study.json`` (engine, versions, wall time).
+
+Both run as episodes on an engine (``--engine local|ray --workers N``, ``bench.engines``): the frames
+are rendered by one twin episode, then ``som`` trains under each learning-rate clock and ``compare``
+runs each method in an episode of its own. ``softarm study robustness``, ``sweep`` and ``accuracy``
+are dispatched to ``bench.robustness``, ``bench.sweep`` and ``bench.accuracy``.
 """
 
 from __future__ import annotations
@@ -35,13 +42,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from bench.capture import captures
 from bench.config import BenchConfig, ConfigError, load_bench_config
-from bench.devices import Stop
-from bench.experiments import make_schedule
+from bench.engines import EngineConfig, EngineError, engine_from_args, run_episodes, workers_used
+from bench.episodes import calibration as episode_calibration
+from bench.episodes import sequence_episode, sequence_spec
 from bench.frame_record import FrameRecord
 from bench.process import Capture, process
-from bench.recording import new_run_folder, write_json
+from bench.recording import write_json
+from bench.study_files import out_folder, write_results, write_study
 from estimator import CalibrationFileError, CenterlineEstimator, EstimatorConfig, StereoCalibration
 from estimator.centerline import centerline_nodes
 from estimator.config import CENTERLINES
@@ -91,11 +99,24 @@ class StudyFrame:
     record: FrameRecord | None = None
 
 
+# subcommands run by a module of their own: which -> (module, function)
+_OTHER_STUDIES = {"robustness": ("bench.robustness", "robustness_command"), "sweep": ("bench.sweep", "sweep_command"),
+                  "accuracy": ("bench.accuracy", "accuracy_command")}
+
+
 def study_command(args) -> int:
-    """Entry point of ``softarm study som|compare [--config] [--frames N] [--out DIR]``."""
+    """Entry point of ``softarm study som|compare|robustness|sweep|accuracy [--config] [--frames N] [--out DIR]
+    [--engine local|ray] [--workers N] [--ray-address HOST:PORT]``."""
+    which = args.which
+    if which in _OTHER_STUDIES:
+        import importlib
+
+        module, function = _OTHER_STUDIES[which]
+        return int(getattr(importlib.import_module(module), function)(args) or 0)
     try:
         config = load_bench_config(getattr(args, "config", None))
-    except ConfigError as e:
+        engine = engine_from_args(args)
+    except (ConfigError, ValueError) as e:
         print(f"softarm study: {e}", file=sys.stderr)
         return 2
     n = getattr(args, "frames", None)
@@ -104,20 +125,25 @@ def study_command(args) -> int:
         print(f"softarm study: --frames {n}: expected 1 to {MAX_STUDY_FRAMES} frames (default {DEFAULT_FRAMES})",
               file=sys.stderr)
         return 2
-    which = args.which
-    out = Path(args.out) if getattr(args, "out", None) else new_run_folder(config.recording.runs_root(),
-                                                                            f"study_{which}_{time.strftime('%Y-%m-%d_%H%M%S')}")
+    out = out_folder(args, config, which)
+    progress = not getattr(args, "no_progress", False)
     print(f"softarm study {which}: rendering {n} twin frames along the experiment ...", flush=True)
+    start = time.perf_counter()
     try:
-        frames, calibration = twin_frames(config, n)
-    except (ConfigError, CalibrationFileError, DeviceError, OSError) as e:
+        frames, calibration = twin_frames(config, n, engine, progress=progress)
+    except (ConfigError, CalibrationFileError, DeviceError, OSError, EngineError, StudyEpisodeError) as e:
         print(f"softarm study {which}: {e}; nothing written", file=sys.stderr)
         return 1
     study = som_study if which == "som" else compare_study
     try:
         out.mkdir(parents=True, exist_ok=True)
-        result = study(frames, calibration, config.estimator_config(), out)
-    except NoArmInFramesError as e:
+        result = study(frames, calibration, config.estimator_config(), out, engine, progress=progress)
+        write_study(out, study=which, engine=engine, workers=workers_used(engine, result["episodes"]),
+                    outcomes=result["outcomes"], wall_s=time.perf_counter() - start,
+                    configuration={"config": str(config.path), "experiment": config.experiment, "frames": n,
+                                   "estimator": config.estimator_config().as_dict()},
+                    seeds={"som": config.estimator_config().som_seed, "experiment": config.experiment.seed})
+    except (NoArmInFramesError, StudyEpisodeError, EngineError) as e:
         print(f"softarm study {which}: {e}", file=sys.stderr)
         return 1
     except OSError as e:
@@ -133,24 +159,51 @@ class NoArmInFramesError(ValueError):
     """None of the study's frames shows the arm (the colour range or the camera is off)."""
 
 
-def twin_frames(config: BenchConfig, count: int) -> tuple[list[StudyFrame], StereoCalibration]:
-    """Render ``count`` frames spread over the configured experiment on the twin (whatever the backend),
-    through the run's own capture loop and frame path (the configured estimator's record of each)."""
-    from bench.factory import make_devices
+class StudyEpisodeError(RuntimeError):
+    """An episode of the study failed twice; the study cannot be completed without it."""
 
-    schedule = make_schedule(config.experiment, frames=count)
-    devices = make_devices(dataclasses.replace(config, backend="sim"))
-    try:
-        calibration = devices.camera.calibration
-        estimator = CenterlineEstimator(calibration, config.estimator_config())
-        frames = []
-        for c in captures(devices, schedule, config.experiment, Stop()):
-            record = process(c, {"main": estimator}, calibration)
-            frames.append(StudyFrame(c.frame.left, c.frame.right, np.asarray(record.gt_m), c.t_s,
-                                     dict(c.commanded_bar), c, record))
-    finally:
-        devices.close()
-    return frames, calibration
+
+def _results(outcomes, what: str) -> list:
+    failed = [o for o in outcomes if not o.ok]
+    if failed:
+        raise StudyEpisodeError(f"{what}: episode {failed[0].index} failed twice: {failed[0].error}")
+    return [o.result for o in outcomes]
+
+
+def twin_frames(config: BenchConfig, count: int, engine: EngineConfig | None = None, *,
+                progress: bool = False) -> tuple[list[StudyFrame], StereoCalibration]:
+    """Render ``count`` frames spread over the configured experiment on the twin (whatever the backend),
+    in one episode on ``engine``, through the run's own capture loop and frame path (the configured
+    estimator's record of each).
+
+    Raises:
+        ConfigError: the twin file is missing (names the config file and ``[sim] twin``).
+        StudyEpisodeError: the episode failed twice (its error).
+    """
+    if not Path(config.sim.twin).is_file():
+        raise ConfigError(f"{config.path} [sim] twin: {config.sim.twin}: twin file not found")
+    spec = sequence_spec(config, frames=count, preset=_twin_preset(config), scene_seed=_twin_scene_seed(config),
+                         estimators={"main": config.estimator_config().as_dict()}, keep_frames=True, tag="render")
+    (result,) = _results(run_episodes(sequence_episode, [spec], engine, label="render", progress=progress),
+                         "rendering the frames")
+    frames = []
+    for record_json, (left, right) in zip(result["records"], result["frames"], strict=True):
+        record = FrameRecord.from_json(record_json)
+        frames.append(StudyFrame(left, right, np.asarray(record.gt_m), record.t_s, dict(record.commanded_bar),
+                                 None, record))
+    return frames, episode_calibration(spec)
+
+
+def _twin_preset(config: BenchConfig) -> str:
+    from twin.twin import TwinConfig
+
+    return TwinConfig.load(config.sim.twin).scene_preset
+
+
+def _twin_scene_seed(config: BenchConfig) -> int:
+    from twin.twin import TwinConfig
+
+    return TwinConfig.load(config.sim.twin).scene_seed
 
 
 def left_samples(frame: StudyFrame, calibration: StereoCalibration, cfg: EstimatorConfig):
@@ -205,9 +258,23 @@ def fig5_curves(samples: Sequence[np.ndarray], cfg: EstimatorConfig, clock: str)
     return curves
 
 
+@dataclass(frozen=True)
+class SomSpec:
+    """An episode of the SOM study: the Fig 5 curves under one learning-rate clock."""
+
+    samples: tuple
+    config: dict
+    clock: str
+
+
+def som_episode(spec: SomSpec) -> dict:
+    return fig5_curves(list(spec.samples), EstimatorConfig.from_dict(spec.config), spec.clock)
+
+
 def som_study(frames: Sequence[StudyFrame], calibration: StereoCalibration, base: EstimatorConfig,
-              out: Path) -> dict:
-    """Fig 5 (a-d) and Table 1 on the frames' left contours; writes plots, som.md and som.json."""
+              out: Path, engine: EngineConfig | None = None, *, progress: bool = False) -> dict:
+    """Fig 5 (a-d) and Table 1 on the frames' left contours, one episode per clock on ``engine``; writes plots,
+    som.md, som.json and results.csv."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -219,7 +286,9 @@ def som_study(frames: Sequence[StudyFrame], calibration: StereoCalibration, base
                                  "hsv_low/hsv_high against the arm's colour and that the camera sees the arm")
     start = time.perf_counter()
     clocks = (cfg.som_time, *(c for c in CLOCKS if c != cfg.som_time))
-    by_clock = {clock: fig5_curves(samples, cfg, clock) for clock in clocks}
+    outcomes = run_episodes(som_episode, [SomSpec(tuple(samples), cfg.as_dict(), c) for c in clocks], engine,
+                            label="som", progress=progress)
+    by_clock = dict(zip(clocks, _results(outcomes, "the SOM study"), strict=True))
     elapsed = time.perf_counter() - start
     shown = by_clock[cfg.som_time]
     table1 = shown["table1"]
@@ -267,8 +336,24 @@ def som_study(frames: Sequence[StudyFrame], calibration: StereoCalibration, base
                  f"sufficient training: {table1['n_limit']} (paper: 30)"]
     headline += [f"differs from the paper: {d}" for d in table1["differences"]]
     _som_markdown(result, headline, out / "som.md")
-    result["headline"] = headline
+    write_results(out, _som_rows(by_clock), ("clock", "figure", "series", "x", "value"))
+    result.update(headline=headline, outcomes=outcomes, episodes=len(outcomes))
     return result
+
+
+def _som_rows(by_clock: dict) -> list[dict]:
+    """The Fig 5 curves of each clock, one row per point (the figure's x and its error)."""
+    rows = []
+    for clock, c in by_clock.items():
+        rows += [{"clock": clock, "figure": "5a", "series": "", "x": n, "value": v}
+                 for n, v in zip(N_NEURONS, c["topology_vs_n"], strict=True)]
+        for figure, key, grid, name in (("5b", "topology_vs_lambda", LAMBDAS, "n"),
+                                        ("5c", "quantization_vs_alpha", ALPHAS, "N"),
+                                        ("5d", "quantization_vs_lambda", LAMBDAS, "alpha0")):
+            for series, values in sorted(c[key].items()):
+                rows += [{"clock": clock, "figure": figure, "series": f"{name}={series:g}", "x": x, "value": v}
+                         for x, v in zip(grid, values, strict=True)]
+    return rows
 
 
 def _choose_table1(topo_n, topo_lam, quant_alpha, quant_lam) -> dict:
@@ -470,49 +555,81 @@ def order_error(nodes: np.ndarray, reference: np.ndarray) -> float:
     return float(np.mean(np.diff(arc) < 0))
 
 
+@dataclass(frozen=True)
+class CompareSpec:
+    """An episode of the comparison: one centerline method on every frame, 2D and through the pipeline."""
+
+    method: str
+    frames: tuple
+    calibration: StereoCalibration
+    config: dict
+
+
+def compare_episode(spec: CompareSpec) -> tuple[dict, np.ndarray | None]:
+    """(the method's scores, its 2D nodes on the last frame with an arm, or None)."""
+    base = EstimatorConfig.from_dict(spec.config)
+    return compare_method(spec.method, list(spec.frames), spec.calibration, base)
+
+
+def compare_method(method: str, frames: Sequence[StudyFrame], calibration: StereoCalibration,
+                   base: EstimatorConfig) -> tuple[dict, np.ndarray | None]:
+    """One method's topology and order errors, 2D time and whole-pipeline accuracy in both modes."""
+    paper_cfg = base.replace(mode="paper")
+    rect = calibration.rectification
+    inputs = [left_samples(f, calibration, paper_cfg) for f in frames]
+    topo, order, times_2d = [], [], []
+    drawn = None
+    pipeline: dict[str, dict] = {}
+    for f, (mask, samples, _) in zip(frames, inputs, strict=True):
+        if len(samples) < 3:
+            continue
+        start = time.perf_counter()
+        nodes = nodes_2d(method, mask, samples, paper_cfg)
+        times_2d.append((time.perf_counter() - start) * 1e3)
+        gt_rect = _project_rect(rect, f.gt_m)
+        topo.append(topology_error(samples, nodes) if len(nodes) >= 2 else float("nan"))
+        order.append(order_error(nodes, gt_rect))
+        drawn = nodes
+    for mode in ("paper", "default"):
+        scores, totals, valid, flagged = [], [], 0, 0
+        for f in frames:
+            est = CenterlineEstimator(calibration, base.replace(mode=mode, centerline=method))  # cold, per frame
+            result = process(_capture(f), {"main": est}, calibration).main
+            totals.append(result.total_ms)
+            flagged += bool(result.flags)
+            if result.valid:
+                valid += 1
+                scores.append(result.errors)
+        pipeline[mode] = {
+            "valid": valid, "frames": len(frames), "flagged": flagged,
+            "rmse_mm": _pooled([s["rmse_mm"] for s in scores]),
+            "max_mm": max((s["max_mm"] for s in scores), default=float("nan")),
+            "tip_mm": float(np.mean([s["tip_mm"] for s in scores])) if scores else float("nan"),
+            "ms_per_frame": float(np.median(totals)),
+        }
+    entry = {"topology_error": _nanmean(topo), "order_error": _nanmean(order),
+             "ms_2d": float(np.median(times_2d)) if times_2d else float("nan"), "pipeline": pipeline}
+    return entry, drawn
+
+
 def compare_study(frames: Sequence[StudyFrame], calibration: StereoCalibration, base: EstimatorConfig,
-                  out: Path) -> dict:
-    """Figs 7, 8 and the accuracy/topology/time table; writes plots, compare.md and compare.json."""
+                  out: Path, engine: EngineConfig | None = None, *, progress: bool = False) -> dict:
+    """Figs 7, 8 and the accuracy/topology/time table, one episode per method on ``engine``; writes plots,
+    compare.md, compare.json and results.csv."""
     import matplotlib
 
     matplotlib.use("Agg")
     paper_cfg = base.replace(mode="paper")
-    rect = calibration.rectification
+    study_frames = tuple(dataclasses.replace(f, capture=None, record=None) for f in frames)  # what travels
+    specs = [CompareSpec(method, study_frames, calibration, base.as_dict()) for method in CENTERLINES]
+    outcomes = run_episodes(compare_episode, specs, engine, label="compare", progress=progress)
     per_method: dict[str, dict] = {}
     drawn: dict[str, np.ndarray] = {}
-    inputs = [left_samples(f, calibration, paper_cfg) for f in frames]
-    for method in CENTERLINES:
-        topo, order, times_2d = [], [], []
-        pipeline: dict[str, dict] = {}
-        for f, (mask, samples, _) in zip(frames, inputs, strict=True):
-            if len(samples) < 3:
-                continue
-            start = time.perf_counter()
-            nodes = nodes_2d(method, mask, samples, paper_cfg)
-            times_2d.append((time.perf_counter() - start) * 1e3)
-            gt_rect = _project_rect(rect, f.gt_m)
-            topo.append(topology_error(samples, nodes) if len(nodes) >= 2 else float("nan"))
-            order.append(order_error(nodes, gt_rect))
+    for method, (entry, nodes) in zip(CENTERLINES, _results(outcomes, "the comparison"), strict=True):
+        per_method[method] = entry
+        if nodes is not None:
             drawn[method] = nodes
-        for mode in ("paper", "default"):
-            scores, totals, valid, flagged = [], [], 0, 0
-            for f in frames:
-                est = CenterlineEstimator(calibration, base.replace(mode=mode, centerline=method))  # cold, per frame
-                result = process(_capture(f), {"main": est}, calibration).main
-                totals.append(result.total_ms)
-                flagged += bool(result.flags)
-                if result.valid:
-                    valid += 1
-                    scores.append(result.errors)
-            pipeline[mode] = {
-                "valid": valid, "frames": len(frames), "flagged": flagged,
-                "rmse_mm": _pooled([s["rmse_mm"] for s in scores]),
-                "max_mm": max((s["max_mm"] for s in scores), default=float("nan")),
-                "tip_mm": float(np.mean([s["tip_mm"] for s in scores])) if scores else float("nan"),
-                "ms_per_frame": float(np.median(totals)),
-            }
-        per_method[method] = {"topology_error": _nanmean(topo), "order_error": _nanmean(order),
-                              "ms_2d": float(np.median(times_2d)) if times_2d else float("nan"), "pipeline": pipeline}
+    inputs = [left_samples(frames[-1], calibration, paper_cfg)]
     last_mask, last_samples, last_rect = inputs[-1]
     _plot_fig7(drawn, last_rect, last_mask, frames[-1], out / "fig7_centerlines.png")
     _plot_fig8(drawn, last_rect, last_mask, out / "fig8_thinning_vs_som.png")
@@ -525,7 +642,12 @@ def compare_study(frames: Sequence[StudyFrame], calibration: StereoCalibration, 
         headline.append(f"{METHOD_NAMES[method]:22s} {m['topology_error']:9.3f} {m['order_error']:7.3f} "
                         f"{_mm(m['pipeline']['paper']):>16s} {_mm(m['pipeline']['default']):>13s} {m['ms_2d']:7.1f}")
     _compare_markdown(result, out / "compare.md")
-    result["headline"] = headline
+    write_results(out, [{"method": method, "mode": mode, "topology_error": m["topology_error"],
+                         "order_error": m["order_error"], "ms_2d": m["ms_2d"], **m["pipeline"][mode]}
+                        for method, m in per_method.items() for mode in ("paper", "default")],
+                  ("method", "mode", "topology_error", "order_error", "valid", "frames", "flagged", "rmse_mm",
+                   "max_mm", "tip_mm", "ms_2d", "ms_per_frame"))
+    result.update(headline=headline, outcomes=outcomes, episodes=len(outcomes))
     return result
 
 

@@ -192,3 +192,44 @@ def test_the_comparison_plot_labels_its_log_axis_with_plain_numbers(tmp_path, mo
     assert ax.get_yscale() == "log"
     texts = [t.get_text() for t in ax.get_yticklabels() + ax.get_yticklabels(minor=True) if t.get_text()]
     assert texts and all(c in "0123456789.−-" for text in texts for c in text), texts  # 20, not 2x10^1
+
+
+def test_som_and_compare_write_the_studies_common_schema(studies):
+    """results.csv beside each study's own files, and study.json naming the engine the episodes ran on."""
+    from bench.study_files import read_results
+
+    out, codes = studies
+    som = read_results(out / "som" / "results.csv")
+    assert {r["clock"] for r in som} == {"sample", "epoch"} and {r["figure"] for r in som} == {"5a", "5b", "5c", "5d"}
+    fig5a = [float(r["value"]) for r in som if r["clock"] == "sample" and r["figure"] == "5a"]
+    result = json.loads((out / "som" / "som.json").read_text())
+    assert fig5a == pytest.approx(result["fig5a_topology_vs_n"], abs=1e-4)
+    compare = read_results(out / "compare" / "results.csv")
+    assert [(r["method"], r["mode"]) for r in compare][:2] == [("som", "paper"), ("som", "default")]
+    assert len(compare) == 10
+    for which, episodes in (("som", 3), ("compare", 6)):  # the render episode, then one per clock or method
+        study = json.loads((out / which / "study.json").read_text())
+        assert study["study"] == which and study["engine"]["name"] == "local"
+        assert study["completed"] == episodes - 1 and study["failed"] == [] and study["wall_s"] > 0
+
+
+def test_the_accuracy_study_runs_each_estimator_as_an_episode(tmp_path):
+    """``softarm study accuracy`` on a short ramp: accuracy.csv per point, results.csv per estimator."""
+    from bench.accuracy import VARIANTS
+    from bench.study_files import read_results
+    from models import model_path
+
+    config = tmp_path / "bench.toml"
+    config.write_text(f'base = "{model_path("bench.toml")}"\n[experiment]\nduration_s = 6.0\n')
+    out = tmp_path / "accuracy"
+    args = SimpleNamespace(which="accuracy", config=str(config), frames=3, out=str(out), engine="local", workers=2)
+    assert study_command(args) == 0
+    rows = read_results(out / "results.csv")
+    assert [r["variant"] for r in rows] == list(VARIANTS)
+    assert all(r["frames"] == "3" and r["valid"] == "3" and float(r["rmse_mm"]) < 5.0 for r in rows)
+    points = (out / "accuracy.csv").read_text().splitlines()
+    assert len(points) > 1 + 2 * 3 * 10  # every point of every frame of both estimators
+    study = json.loads((out / "study.json").read_text())
+    assert study["study"] == "accuracy" and study["engine"] == {"name": "local", "workers": 2}
+    for name in ("accuracy_along_arm.png", "accuracy_vs_row_angle.png", "accuracy.md"):
+        assert (out / name).stat().st_size > 500

@@ -1,0 +1,62 @@
+"""The local engine: episodes on a process pool, in spec order, retried once, failures reported."""
+
+import pytest
+
+from bench.engines import EngineConfig, engine_from_args, run_episodes, stream_episodes
+from tests.bench import episode_fns
+
+LOCAL2 = EngineConfig("local", workers=2)
+
+
+def test_results_come_back_in_spec_order_from_separate_processes():
+    outcomes = run_episodes(episode_fns.square, [{"x": x} for x in range(6)], LOCAL2, progress=False)
+    assert [o.index for o in outcomes] == list(range(6))
+    assert [o.result["value"] for o in outcomes] == [x * x for x in range(6)]
+    assert all(o.ok and o.attempts == 1 and o.episode_s >= 0 for o in outcomes)
+    import os
+
+    assert os.getpid() not in {o.result["pid"] for o in outcomes}  # not run in the caller's process
+
+
+def test_a_failed_episode_is_tried_once_more(tmp_path):
+    specs = [{"x": x, "marker": str(tmp_path / f"m{x}")} for x in range(3)]
+    outcomes = run_episodes(episode_fns.fails_first_time, specs, LOCAL2, progress=False)
+    assert [o.result["value"] for o in outcomes] == [0, 1, 4]
+    assert all(o.attempts == 2 and o.ok for o in outcomes)
+    assert outcomes[1].failures == ("RuntimeError: first attempt of 1 fails",)
+
+
+def test_an_episode_failing_twice_is_reported_and_the_rest_complete(capsys):
+    specs = [{"x": x, "fail": x == 1} for x in range(4)]
+    outcomes = list(stream_episodes(episode_fns.always_fails, specs, LOCAL2, label="t"))
+    outcomes.sort(key=lambda o: o.index)
+    assert [o.ok for o in outcomes] == [True, False, True, True]
+    assert outcomes[1].attempts == 2 and outcomes[1].result is None
+    assert outcomes[1].error == "ValueError: episode 1 is broken"
+    assert "t: episode 1 failed twice: ValueError: episode 1 is broken" in capsys.readouterr().err
+
+
+def test_a_worker_that_dies_is_replaced_and_its_episode_retried(tmp_path):
+    specs = [{"x": x, "marker": str(tmp_path / ("m" if x == 2 else f"ok{x}"))} for x in range(4)]
+    for x in (0, 1, 3):
+        (tmp_path / f"ok{x}").write_text("")  # only episode 2 dies, on its first attempt
+    outcomes = run_episodes(episode_fns.dies_first_time, specs, LOCAL2, progress=False)
+    assert all(o.ok for o in outcomes), [o.error for o in outcomes]
+    assert [o.result["value"] for o in outcomes] == [0, 1, 4, 9]
+    assert outcomes[2].attempts == 2 and "BrokenProcessPool" in outcomes[2].failures[0]
+
+
+@pytest.mark.parametrize(("kwargs", "message"), [
+    ({"engine": "local", "ray_address": "head:6379"}, "--ray-address head:6379: it takes --engine ray"),
+    ({"engine": "local", "workers": 0}, "--workers 0: expected 1 or more"),
+])
+def test_engine_arguments_are_checked(kwargs, message):
+    from types import SimpleNamespace
+
+    with pytest.raises(ValueError, match=message):
+        engine_from_args(SimpleNamespace(**kwargs))
+
+
+def test_an_unknown_engine_is_refused():
+    with pytest.raises(ValueError, match="engine: expected one of local, ray, got 'dask'"):
+        EngineConfig("dask")
