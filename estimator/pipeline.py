@@ -53,6 +53,7 @@ MIN_TUBE_INLIERS = 0.8  # share of edges within a pixel of the fitted tube
 MAX_TUBE_RMS_PX = 0.6  # RMS of those edges
 OUTLINE_FAN_DEG = 70.0  # rays around an end, either side of the centerline's direction
 OUTLINE_STEP_DEG = 10.0
+OUTLINE_BACK_HALVES = 1.5  # outline points further back from the end than this many half widths are dropped
 # A point is bridged when it lies in a stretch of either image without edges longer than this
 # many radii: an end's cap or mount leaves about half of that (10-22 mm), a baseplate or a
 # cable across the arm 35-60 mm (with the chords beside them that are not clean).
@@ -64,6 +65,7 @@ MAX_POINT_STD_M = 0.04
 # Starting the fit from the previous frame's tube saves the disparity profile but measured worse
 # (2.8 against 2.2 mm on a late-ramp stretch of the twin): the profile starts it better.
 WARM_START_TUBE = False
+SECOND_START = True  # also fit from the previous frame's tube; keep the lower cost
 MIN_CLEAN_CHORDS = 0.9  # below this share of clean chords after one refinement pass, a second one runs
 REFINE_PASSES = 1  # chord passes of the 2D refinement (the tube fit does the sub-pixel work since)
 MAX_CORRIDOR_CUT = 0.1  # share of the arm-coloured pixels touching the corridor that it may cut away
@@ -629,9 +631,18 @@ class CenterlineEstimator:
         # tube changes a little with its pose and its shading, and a radius held tighter than a
         # millimetre pulled depth off with it (late ramp, lab: 1.7 -> 2.2 mm RMSE at 0.03 mm).
         sigma = np.maximum(1.0 / np.sqrt(self._radius_info), RADIUS_FIT_SIGMA_M)
-        fit = fit_tube(edges, ends, dense, self._radius, sigma, focal_px=f,
-                       baseline_m=self._rect.baseline_m, base_prior=self._base.prior, initial_control=warm_control,
-                       tip_outline=tip_outline)
+        def fit_from(start):
+            return fit_tube(edges, ends, dense, self._radius, sigma, focal_px=f, baseline_m=self._rect.baseline_m,
+                            base_prior=self._base.prior, initial_control=start, tip_outline=tip_outline)
+
+        fit = fit_from(warm_control)
+        if warm_control is None and self._warm_fit is not None and SECOND_START:
+            # A second start from the previous frame's tube: the fit can settle where a bend near the
+            # tip trades depth for shape (late ramp, lab: the tip 20 mm off in depth at a higher cost
+            # than the tube near the truth). The lower cost wins.
+            other = fit_from(self._warm_fit.control)
+            if other is not None and (fit is None or other.cost < fit.cost):
+                fit = other
         if fit is None:
             raise _NoArmError("the tube could not be fitted to the silhouettes' edges")
         if fit.inliers < MIN_TUBE_INLIERS or fit.rms_px > MAX_TUBE_RMS_PX:
@@ -808,7 +819,12 @@ def _end_outline(image: np.ndarray, mask01: np.ndarray, offset: np.ndarray, curv
     starts = np.repeat(origin[None], int(ok.sum()), axis=0)
     offsets, _ = subpixel_edges(image, starts, directions[ok], guesses[ok], np.ones(int(ok.sum()), bool))
     found = np.isfinite(offsets[:, 1])
-    return curve.points[i] + offsets[found, 1][:, None] * directions[ok][found]
+    points = curve.points[i] + offsets[found, 1][:, None] * directions[ok][found]
+    # Only the outline near the end: from a last clean chord far back, the outer rays meet the
+    # sides where the tube has curved away from the straight end the fit's outline model assumes
+    # (2-4 px off on the twin's late ramp).
+    near = (points - curve.points[i]) @ along >= reach - OUTLINE_BACK_HALVES * half
+    return points[near]
 
 
 def _subpixel_end(image: np.ndarray, offset: np.ndarray, curve: Centerline2D, end: int) -> np.ndarray:

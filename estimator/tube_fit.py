@@ -30,7 +30,7 @@ deviation, which, with the residuals, decides whether the frame is trusted.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numba
 import numpy as np
@@ -89,6 +89,10 @@ class TubeFit:
         inliers: share of edges within the Huber threshold.
         edge_u: (K,) where each edge is attached on the axis.
         edge_residual_px: (K,) each edge's final residual.
+        tip_residual_px: image (0 left, 1 right) -> the final residuals of what located the tip in
+            that image: its outline's points, or its single end point (absent where unseen).
+        cost: the final robust cost (residuals and priors): of two fits to the same observations
+            from different starts, the lower one is the better.
     """
 
     knots: np.ndarray
@@ -100,6 +104,8 @@ class TubeFit:
     inliers: float
     edge_u: np.ndarray
     edge_residual_px: np.ndarray
+    tip_residual_px: dict = field(default_factory=dict)
+    cost: float = math.inf
 
     def points(self, us: np.ndarray) -> np.ndarray:
         return evaluate_many(self.knots, self.control, np.asarray(us, np.float64))[0]
@@ -572,7 +578,12 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
     # Scale by the observed noise when it exceeds the assumed one (never below it).
     covariance *= max(1.0, (rms / EDGE_SIGMA_PX) ** 2)
     radius_std = np.sqrt(np.maximum(np.diag(covariance)[3 * count:], 0.0))
-    return TubeFit(knots, control, radii, radius_std, covariance, rms, inliers, us[:n_edges].copy(), edge_res)
+    at_tip = np.zeros(len(kinds), bool)
+    at_tip[n_edges:] = np.array(end_us) == 1.0
+    tip_res = {int(side): residuals[at_tip & (sides == side)] for side in END_SIDES
+               if np.any(at_tip & (sides == side))}
+    return TubeFit(knots, control, radii, radius_std, covariance, rms, inliers, us[:n_edges].copy(), edge_res,
+                   tip_res, cost)
 
 
 def fuse_radius(mean: np.ndarray, info: np.ndarray, fit: TubeFit, *, floor_m: float = RADIUS_FLOOR_M,
