@@ -15,6 +15,7 @@ _HANDLERS = {
     "run": ("bench.run", "run_command"),
     "report": ("bench.report", "report_command"),
     "replay": ("bench.replay", "replay_command"),
+    "view": ("bench.live_view", "view_command"),
     "study": ("bench.studies", "study_command"),
     "calibrate": ("bench.calibrate", "calibrate_command"),
     "rig": ("bench.rig_check", "rig_command"),
@@ -63,6 +64,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--no-report", action="store_true", help="skip the plots and video at the end")
     run.add_argument("--yes", action="store_true",
                      help="go ahead with a run expected to write more than 2 GB (the expected size is printed first)")
+    run.add_argument("--view", nargs="?", const="native", choices=("native", "web"), metavar="web",
+                     help="watch it live in Rerun: --view spawns the viewer (needs a display), --view web serves the "
+                     "web viewer and prints its URL (needs: pip install 'softarm-twin[view]')")
+    run.add_argument("--rrd", metavar="FILE", help="save the Rerun recording to FILE (with or without --view)")
 
     report = add("report", "Write plots, overlay video and a markdown summary for a run folder.",
                  "softarm report runs/2026-11-22_101500")
@@ -107,6 +112,14 @@ def build_parser() -> argparse.ArgumentParser:
     calibrate.add_argument("--views", type=int, help="number of board views to use")
     calibrate.add_argument("--board", metavar="COLSxROWS", help="inner corners of the checkerboard; default 9x6")
     calibrate.add_argument("--square-mm", type=float, help="printed square size in mm; default 40")
+
+    view = add("view", "Turn a recorded run into the Rerun recording `run --view` shows: open, serve or save it.",
+               "softarm view runs/latest --rrd run.rrd   (then: rerun run.rrd)")
+    view.epilog = _RUN_EXIT_CODES.replace("1 failed while writing", "1 the view failed")
+    view.add_argument("run_dir", metavar="RUN", nargs="?", default=_LATEST_RUN,
+                      help=f"the run folder; default {_LATEST_RUN} (the newest run under the working directory)")
+    view.add_argument("--rrd", metavar="FILE", help="save the recording to FILE instead of opening the viewer")
+    view.add_argument("--web", action="store_true", help="serve the web viewer and print its URL (Ctrl-C stops it)")
 
     rig = add("rig", "Check the physical rig's devices without moving anything.", "softarm rig check")
     rig.add_argument("action", choices=("check",))

@@ -41,6 +41,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from bench.capture import captures
 from bench.config import BenchConfig, ConfigError, load_bench_config
@@ -77,6 +78,8 @@ class RunOptions:
         progress: show a progress bar.
         argv: the command line, recorded in config.json.
         yes: go ahead with a run expected to write more than ``DISK_CONFIRM_BYTES`` (``--yes``).
+        live: a ``bench.live_view.LiveView`` (``--view``, ``--rrd``) handed the calibration and every
+            frame with its images beside the loop, and the summary at the end; None: no view.
     """
 
     mode: str | None = None
@@ -87,6 +90,7 @@ class RunOptions:
     progress: bool = True
     argv: list[str] = field(default_factory=list)
     yes: bool = False
+    live: Any = None
 
 
 @dataclass
@@ -159,7 +163,18 @@ def run_command(args) -> int:
                          report=not getattr(args, "no_report", False), argv=list(sys.argv),
                          yes=bool(getattr(args, "yes", False)))
     try:
+        options.live = _open_live_view(args)
+    except RuntimeError as e:  # bench.live_view.ViewError: no rerun-sdk, no display, a bad --rrd path
+        print(f"softarm run: {e}", file=sys.stderr)
+        print("softarm run: nothing was moved", file=sys.stderr)
+        return EXIT_USAGE
+    try:
         outcome = run_experiment(config, options)
+        if options.live is not None:
+            if getattr(args, "rrd", None):
+                print(f"recording: {args.rrd}; open it with: rerun {args.rrd}")
+            if outcome.exit_code not in _SIGNAL_EXIT.values():
+                options.live.serve_until_interrupted()  # --view web: the viewer stays up until Ctrl-C
     except RunError as e:  # after the valves moved: never "nothing was moved"
         print(f"softarm run: {e}", file=sys.stderr)
         return EXIT_FAILED
@@ -171,7 +186,27 @@ def run_command(args) -> int:
         print(f"softarm run: {e}", file=sys.stderr)
         print("softarm run: nothing was moved", file=sys.stderr)
         return EXIT_USAGE
+    finally:
+        if options.live is not None:
+            options.live.close()  # completes the .rrd file whatever happened
     return outcome.exit_code
+
+
+def _open_live_view(args):
+    """The live view ``--view [web]`` and ``--rrd FILE`` ask for, or None (``bench.live_view``: Rerun is optional).
+
+    Raises:
+        bench.live_view.ViewError: rerun-sdk is not installed, no display for the native viewer, a bad ``--rrd``.
+    """
+    viewer, rrd = getattr(args, "view", None), getattr(args, "rrd", None)
+    if viewer is None and rrd is None:
+        return None
+    from bench.live_view import LiveView, ViewTarget
+
+    view = LiveView(ViewTarget(viewer=viewer, rrd=Path(rrd) if rrd else None))
+    if view.url is not None:
+        print(f"softarm run: the web viewer is at {view.url}", flush=True)
+    return view
 
 
 def estimator_configs(config: BenchConfig, options: RunOptions) -> dict[str, EstimatorConfig]:
@@ -240,6 +275,8 @@ def run_experiment(config: BenchConfig, options: RunOptions) -> RunOutcome:
                            f"{writer.folder}") from e
     # Devices and files are closed and SIGINT/SIGTERM act as usual again: Ctrl-C now only stops the report.
     _print_summary(outcome.summary, writer.folder)
+    if options.live is not None:
+        options.live.finish(outcome.summary)  # the viewer shows the summary while the report is written
     if stop.signum is not None and outcome.exit_code not in _SIGNAL_EXIT.values():
         outcome.exit_code = _SIGNAL_EXIT[stop.signum]  # the signal came after the last frame
     if outcome.exit_code in _SIGNAL_EXIT.values():
@@ -338,9 +375,14 @@ def _run_loop(config, options, schedule, est_configs, devices: Devices, writer: 
                 break
             estimator.warm_up()
         progress = _progress(schedule.frames, options.progress, writer.folder)
+        live = options.live
+        if live is not None:
+            live.start(calibration, channels=devices.valves.channels, name=writer.folder.name)
 
         def record_frame(capture) -> None:  # in the worker thread, frame after frame
             record = process(capture, estimators, calibration)
+            if live is not None:  # queued for the view's own thread: never waits
+                live.submit(record, capture.frame.left, capture.frame.right)
             stored = capture.stored
             start = time.perf_counter()
             writer.submit(record, stored.left, stored.right, stored.depth_units, stored.noise)
