@@ -1,9 +1,12 @@
-"""Estimator speed: per-stage milliseconds and fps for the default mode, the paper mode with the
-compiled SOM and the paper mode with the numpy reference SOM, measured side by side in one run.
+"""Estimator speed: per-stage milliseconds and fps for the default mode (in the clean scene and in
+the lab scene), the paper mode with the compiled SOM and the paper mode with the numpy reference
+SOM, measured side by side in one run.
 
 Frames come from the digital twin along the paper's ramp (s1_a, s2_a, s3 from 0 to 2.5 bar), so
-the arm takes the shapes of the experiment. Each configuration runs the whole sequence with warm
-start, interleaved frame by frame so machine load affects all of them alike; medians are quoted.
+the arm takes the shapes of the experiment; the lab column renders the same ramp in the ``lab``
+scene preset (brick wall, wood, skin, cables, two lights). Each configuration runs its whole
+sequence with warm start, interleaved frame by frame so machine load affects all of them alike;
+medians are quoted.
 
     python benchmarks/estimator_speed.py [--frames 30] [--repeats 3]
 """
@@ -22,17 +25,22 @@ import numpy as np
 from estimator import CenterlineEstimator, EstimatorConfig
 from estimator.som import linear_init, som_online
 
+# column -> (scene preset, estimator configuration)
 CONFIGS = {
-    "default": EstimatorConfig(),
-    "paper (compiled SOM)": EstimatorConfig(mode="paper"),
-    "paper (numpy SOM)": EstimatorConfig(mode="paper", som_compiled=False),
+    "default": ("clean", EstimatorConfig()),
+    "default, lab scene": ("lab", EstimatorConfig()),
+    "paper (compiled SOM)": ("clean", EstimatorConfig(mode="paper")),
+    "paper (numpy SOM)": ("clean", EstimatorConfig(mode="paper", som_compiled=False)),
 }
 
 
-def twin_frames(count: int):
-    from twin import Twin
+def twin_frames(count: int, preset: str):
+    import dataclasses
 
-    twin = Twin()
+    from twin import Twin
+    from twin.twin import DEFAULT_CONFIG, TwinConfig
+
+    twin = Twin(dataclasses.replace(TwinConfig.load(DEFAULT_CONFIG), scene_preset=preset))
     frames = []
     for pressure in np.linspace(0.0, 2.5, count):
         twin.valves.set_pressures({"s1_a": pressure, "s2_a": pressure, "s3": pressure})
@@ -50,10 +58,14 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
 
-    calibration, frames = twin_frames(args.frames)
-    estimators = {name: CenterlineEstimator(calibration, cfg) for name, cfg in CONFIGS.items()}
-    for est in estimators.values():  # compile and warm caches outside the timing
-        est.estimate(*frames[0])
+    scenes = {}
+    for preset in dict.fromkeys(preset for preset, _ in CONFIGS.values()):
+        scenes[preset] = twin_frames(args.frames, preset)
+    calibration = next(iter(scenes.values()))[0]
+    estimators = {name: CenterlineEstimator(calibration, cfg) for name, (_, cfg) in CONFIGS.items()}
+    frames_of = {name: scenes[preset][1] for name, (preset, _) in CONFIGS.items()}
+    for name, est in estimators.items():  # compile and warm caches outside the timing
+        est.estimate(*frames_of[name][0])
         est.reset()
 
     stages: dict[str, dict[str, list[float]]] = {name: {} for name in estimators}
@@ -61,18 +73,19 @@ def main() -> None:
     for _ in range(args.repeats):
         for est in estimators.values():
             est.reset()
-        for left, right in frames:
+        for i in range(args.frames):
             for name, est in estimators.items():
-                result = est.estimate(left, right)
+                result = est.estimate(*frames_of[name][i])
                 for stage, ms in result.timings_ms.items():
                     stages[name].setdefault(stage, []).append(ms)
-    for left, right in frames[:: max(1, len(frames) // 10)]:
+    for i in range(0, args.frames, max(1, args.frames // 10)):
         for name, est in estimators.items():
             est.reset()
-            cold[name].append(est.estimate(left, right).timings_ms["total"])
+            cold[name].append(est.estimate(*frames_of[name][i]).timings_ms["total"])
 
-    order = ["rectify", "segment", "centerline", "refine", "match", "triangulate", "smooth", "output", "total"]
-    print(f"Estimator speed, {len(frames)} twin frames (1280x720 stereo pairs) x {args.repeats}, medians in ms")
+    order = ["locate", "rectify", "segment", "centerline", "refine", "edges", "match", "triangulate", "smooth",
+             "tube", "output", "total"]
+    print(f"Estimator speed, {args.frames} twin frames (1280x720 stereo pairs) x {args.repeats}, medians in ms")
     print("(stage times add both images, which run in parallel; 'total' is wall time per pair)\n")
     print(f"{'stage':<12}" + "".join(f"{name:>24}" for name in estimators))
     for stage in order:

@@ -13,6 +13,7 @@ geometry.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -65,7 +66,7 @@ MAX_POINT_STD_M = 0.04
 # Starting the fit from the previous frame's tube saves the disparity profile but measured worse
 # (2.8 against 2.2 mm on a late-ramp stretch of the twin): the profile starts it better.
 WARM_START_TUBE = False
-SECOND_START = True  # also fit from the previous frame's tube; keep the lower cost
+SECOND_START_M = 0.003  # a tip further than this from the last frame's: fit again from the last tube, keep the lower cost
 MIN_CLEAN_CHORDS = 0.9  # below this share of clean chords after one refinement pass, a second one runs
 REFINE_PASSES = 1  # chord passes of the 2D refinement (the tube fit does the sub-pixel work since)
 MAX_CORRIDOR_CUT = 0.1  # share of the arm-coloured pixels touching the corridor that it may cut away
@@ -636,10 +637,11 @@ class CenterlineEstimator:
                             base_prior=self._base.prior, initial_control=start, tip_outline=tip_outline)
 
         fit = fit_from(warm_control)
-        if warm_control is None and self._warm_fit is not None and SECOND_START:
+        if warm_control is None and self._warm_fit is not None and self._moved_from_last(fit) > SECOND_START_M:
             # A second start from the previous frame's tube: the fit can settle where a bend near the
             # tip trades depth for shape (late ramp, lab: the tip 20 mm off in depth at a higher cost
-            # than the tube near the truth). The lower cost wins.
+            # than the tube near the truth). Only where the tube moved far from the last frame's
+            # (tracking slowly, both starts end alike). The lower cost wins.
             other = fit_from(self._warm_fit.control)
             if other is not None and (fit is None or other.cost < fit.cost):
                 fit = other
@@ -685,6 +687,13 @@ class CenterlineEstimator:
         self._radius_frames += 1
         self._base.observe(fit)
         return points
+
+    def _moved_from_last(self, fit: TubeFit | None) -> float:
+        """How far a fit's tip lies from the previous frame's (metres; infinite without a fit)."""
+        if fit is None or self._warm_fit is None:
+            return math.inf
+        ends = np.array([1.0])
+        return float(np.linalg.norm(fit.points(ends)[0] - self._warm_fit.points(ends)[0]))
 
     def _check_single_tube(self, disparity: np.ndarray, weight: np.ndarray, left: Centerline2D) -> None:
         """Raise when the silhouette is too wide for one tube at its depth: two parts overlap.
@@ -860,16 +869,16 @@ def _length_mismatch(left: Centerline2D, right: Centerline2D) -> str:
 
 
 def _uncovered(samples: np.ndarray, nodes: np.ndarray, width_px: float) -> float:
-    """Share of the arm's samples further than one arm width from the node chain."""
+    """Share of the arm's samples further than about one arm width from the node chain (the chain
+    drawn one width either side of it, looked up at the samples)."""
     if len(samples) == 0 or len(nodes) < 2 or width_px <= 0:
         return 0.0
-    a, b = nodes[:-1], nodes[1:]
-    ab = b - a
-    t = np.clip(((samples[:, None, :] - a[None]) * ab[None]).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-12)[None],
-                0.0, 1.0)
-    closest = a[None] + t[..., None] * ab[None]
-    distance = np.sqrt(((samples[:, None, :] - closest) ** 2).sum(-1)).min(axis=1)
-    return float(np.mean(distance > width_px))
+    lo = np.floor(np.minimum(samples.min(axis=0), nodes.min(axis=0)) - width_px - 2).astype(int)
+    hi = np.ceil(np.maximum(samples.max(axis=0), nodes.max(axis=0)) + width_px + 2).astype(int)
+    band = np.zeros((hi[1] - lo[1] + 1, hi[0] - lo[0] + 1), np.uint8)
+    cv2.polylines(band, [np.round(nodes - lo).astype(np.int32)], False, 255, max(int(round(2.0 * width_px)), 1))
+    at = np.round(samples - lo).astype(int)
+    return float(np.mean(band[at[:, 1], at[:, 0]] == 0))
 
 
 def _measured(at: np.ndarray, edge_u: np.ndarray, edge_side: np.ndarray, gap_u: float) -> np.ndarray:
