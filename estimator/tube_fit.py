@@ -251,9 +251,28 @@ def _residual_of(kind, C, D, r, x, y, extra):
 
 
 @numba.njit(cache=True, nogil=True)
-def _normal_equations(knots, control, radii, bins, baseline, focal, kinds, sides, us, xs, ys, extras, sigmas, huber,
+def _bases(knots, count, us):
+    """The B-spline basis at every observation's u: (first control point (n,), values (n, 4),
+    derivatives (n, 4)). They change only when observations are re-attached, not with the control
+    points, so the fit computes them once per attachment."""
+    n = us.shape[0]
+    firsts = np.empty(n, np.int64)
+    values = np.empty((n, DEGREE + 1))
+    derivs = np.empty((n, DEGREE + 1))
+    for i in range(n):
+        first, v, d = basis(knots, count, us[i])
+        firsts[i] = first
+        values[i] = v
+        derivs[i] = d
+    return firsts, values, derivs
+
+
+@numba.njit(cache=True, nogil=True)
+def _normal_equations(bases, control, radii, bins, baseline, focal, kinds, sides, xs, ys, extras, sigmas, huber,
                       want_system):
-    """Robust cost, residuals (px) and, if asked, J^T W J and J^T W r over every observation."""
+    """Robust cost, residuals (px) and, if asked, J^T W J and J^T W r over every observation
+    (``bases``: ``_bases`` of the observations' places on the axis)."""
+    firsts, all_values, all_derivs = bases
     count = control.shape[0]
     nr = radii.shape[0]
     npar = 3 * count + nr
@@ -267,8 +286,12 @@ def _normal_equations(knots, control, radii, bins, baseline, focal, kinds, sides
     D = np.empty(3)
     Cp = np.empty(3)
     Dp = np.empty(3)
+    gC = np.empty(3)
+    gD = np.empty(3)
     for i in range(kinds.shape[0]):
-        first, values, deriv = basis(knots, count, us[i])
+        first = firsts[i]
+        values = all_values[i]
+        deriv = all_derivs[i]
         for c in range(3):
             C[c] = 0.0
             D[c] = 0.0
@@ -295,8 +318,6 @@ def _normal_equations(knots, control, radii, bins, baseline, focal, kinds, sides
             continue
         # forward-difference partials of the residual in C, D and r (steps far below any length
         # that matters, far above rounding: the residual is smooth on that scale)
-        gC = np.empty(3)
-        gD = np.empty(3)
         dn = math.sqrt(D[0] * D[0] + D[1] * D[1] + D[2] * D[2])
         h = 1e-6
         hd = 1e-6 * dn
@@ -509,12 +530,13 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
     npar = 3 * count + len(radii)
     prior_w = 1.0 / np.asarray(radius_sigma, np.float64) ** 2
     bins = radius_bins(knots, control, us, len(radii))
+    bases = [_bases(knots, count, us)]
 
     loss = [HUBER_PX]  # Huber while the fit settles, then redescending (a negative threshold)
 
     def total(control_, radii_, system):
-        cost, residuals, A, g = _normal_equations(knots, control_, radii_, bins, baseline_m, focal_px, kinds, sides,
-                                                  us, xs, ys, extras, sigmas, loss[0], system)
+        cost, residuals, A, g = _normal_equations(bases[0], control_, radii_, bins, baseline_m, focal_px, kinds, sides,
+                                                  xs, ys, extras, sigmas, loss[0], system)
         x = control_.reshape(-1)
         sx = S @ x * w_smooth
         cost += float(sx @ sx)
@@ -559,6 +581,7 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
         if iteration + 1 in REASSIGN_AT:
             us[:n_edges] = _attach(knots, control, baseline_m, sides[:n_edges], edges.centre, CURVE_SAMPLES)
             bins = radius_bins(knots, control, us, len(radii))
+            bases[0] = _bases(knots, count, us)
         if iteration + 1 == REDESCEND_AFTER or (_staged and iteration == 0):
             loss[0] = -HUBER_PX
         cost, residuals, A, g = total(control, radii, True)
