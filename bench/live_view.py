@@ -20,7 +20,8 @@ experiment's start, simulated on the twin); metres, in the left camera's frame (
 right, y down, z forward), as the estimates are::
 
     world                              view coordinates RDF (static)
-    world/camera/left                  Pinhole(K_left, image size): the frustum in the 3D view (static)
+    world/camera/left                  Pinhole(K_left, image size): the frustum in the 3D view (static; the
+                                       lens distortion is not drawn, the images and centerlines are raw)
     world/camera/left/image            the raw left image as the estimator saw it, JPEG
     world/camera/left/centerline       the 2D centerline (left_uv), cleared on an invalid frame
     world/camera/left/bridged          its points the tube fit bridged (measured False)

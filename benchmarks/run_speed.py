@@ -155,7 +155,8 @@ def logging_comparison(config, frames: int | None, block: int, keep: Path | None
         rrd = root / "full.rrd"
         live = LiveView(ViewTarget(rrd=rrd))
         summary = run("full", live)
-        verify = subprocess.run(["rerun", "rrd", "verify", str(rrd)], capture_output=True, text=True)
+        verify = subprocess.run([sys.executable, "-m", "rerun_cli", "rrd", "verify", str(rrd)], capture_output=True,
+                                text=True)  # the rerun-sdk wheel's CLI, whatever PATH says
         size_mb = rrd.stat().st_size / 1e6
         count = max(summary["frames"], 1)
         submit_ms, submit_cpu_ms = 1e3 * live.submit_s / count, 1e3 * live.submit_cpu_s / count
