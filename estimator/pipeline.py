@@ -66,7 +66,8 @@ MAX_POINT_STD_M = 0.04
 # Starting the fit from the previous frame's tube saves the disparity profile but measured worse
 # (2.8 against 2.2 mm on a late-ramp stretch of the twin): the profile starts it better.
 WARM_START_TUBE = False
-SECOND_START_M = 0.003  # a tip further than this from the last frame's: fit again from the last tube, keep the lower cost
+# A tip further than this from the last frame's: fit again from the last tube, keep the lower cost.
+SECOND_START_M = 0.003
 MIN_CLEAN_CHORDS = 0.9  # below this share of clean chords after one refinement pass, a second one runs
 REFINE_PASSES = 1  # chord passes of the 2D refinement (the tube fit does the sub-pixel work since)
 MAX_CORRIDOR_CUT = 0.1  # share of the arm-coloured pixels touching the corridor that it may cut away
