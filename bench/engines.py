@@ -222,8 +222,10 @@ def _run_local(fn, specs: list, engine: EngineConfig) -> Iterator[Outcome]:
                         yield outcome
                 pool.shutdown(wait=False, cancel_futures=True)
                 pool = futures.ProcessPoolExecutor(max_workers=workers, mp_context=context)
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
+    except BaseException:  # Ctrl-C, or the caller stopped reading: do not wait for the episodes under way
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
 
 
 def _failed(item: _Pending, specs: list, error: BaseException | str, queue: list) -> Outcome | None:
