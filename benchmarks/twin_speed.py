@@ -3,9 +3,12 @@
     python benchmarks/twin_speed.py [--frames 20]
 
 Prints the physics real-time factor (simulated seconds per wall-clock second while the arm
-moves under a pressure ramp), and the median time to render one raw 1280x720 stereo pair (both
-eyes, distortion, noise; with and without the left depth map) with its breakdown per stage.
+moves under a pressure ramp), the median time to render one raw 1280x720 stereo pair (both
+eyes, distortion, noise; with and without the left depth map) with its breakdown per stage, and
+the time of a camera grab (a pair as a run captures it) in each scene preset of
+``models/scene.toml``, the presets interleaved frame by frame, with its ratio to ``clean``.
 Targets (issue 3): physics >= 10x real time; a raw stereo pair <= 120 ms on a 2-core machine.
+Issue 10: a lab scene renders within 1.5x of the clean one.
 """
 
 from __future__ import annotations
@@ -67,6 +70,33 @@ def render_times(config: TwinConfig, frames: int) -> dict[str, list[float]]:
     return times
 
 
+def preset_grab_times(config: TwinConfig, frames: int) -> dict[str, list[float]]:
+    """Wall times (s) of ``camera.grab()`` per scene preset, the arm moving, presets interleaved."""
+    import dataclasses
+
+    from twin import Twin
+    from twin.scene import preset_names
+
+    presets = ["clean"] + [name for name in preset_names(config.scene_file) if name != "clean"]
+    twins = {name: Twin(dataclasses.replace(config, scene_preset=name)) for name in presets}
+    times: dict[str, list[float]] = {name: [] for name in presets}
+    try:
+        for twin in twins.values():
+            twin.valves.set_pressures({"s1_a": 1.2, "s2_a": 1.5, "s3": 1.0})
+            twin.advance(1.5)
+            twin.camera.grab()  # warm-up: the static scene is rendered once and cached
+        for _ in range(frames):
+            for name, twin in twins.items():
+                twin.advance(0.084)
+                start = time.perf_counter()
+                twin.camera.grab()
+                times[name].append(time.perf_counter() - start)
+    finally:
+        for twin in twins.values():
+            twin.close()
+    return times
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=20, help="frames to time (median reported)")
@@ -85,6 +115,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"per 1280x720 view (pair without depth / 2): {ms['pair_no_depth'] / 2:.1f} ms")
     print(f"  stages of a pair: scene update {ms['scene']:.1f} ms, OpenGL left (+ depth) {ms['gl_left']:.1f} ms, "
           f"OpenGL right {ms['gl_right']:.1f} ms, distortion + noise + depth {ms['post']:.1f} ms")
+    grabs = {name: 1000 * statistics.median(values) for name, values in preset_grab_times(config, args.frames).items()}
+    print("\ncamera grab per scene preset (a raw stereo pair as a run captures it; median ms, ratio to clean):")
+    for name, value in grabs.items():
+        print(f"  {name:<12} {value:7.1f} ms   {value / grabs['clean']:5.2f} x clean")
     return 0
 
 
