@@ -85,6 +85,7 @@ class Outcome:
         attempts: how many times it ran (1, or 2 after a retry).
         episode_s: wall seconds inside the episode function (its last attempt).
         failures: the error of each failed attempt.
+        workers: how many episodes the engine ran at once.
     """
 
     index: int
@@ -94,6 +95,7 @@ class Outcome:
     attempts: int
     episode_s: float
     failures: tuple[str, ...] = ()
+    workers: int | None = None
 
     @property
     def ok(self) -> bool:
@@ -138,7 +140,13 @@ def stream_episodes(fn: Callable[[Any], Any], specs: Sequence[Any], engine: Engi
         return
     from tqdm import tqdm
 
-    runner = _run_local if engine.name == "local" else _run_ray
+    if engine.name == "local":
+        runner = _run_local
+    else:
+        ray, started = start_ray(engine)  # connected (or refused) before the progress bar shows
+
+        def runner(fn, specs, engine):
+            return _run_ray(fn, specs, engine, ray, started)
     failed = 0
     with tqdm(total=len(specs), desc=label, unit="episode", file=sys.stderr, disable=not progress,
               dynamic_ncols=True) as bar:
@@ -206,18 +214,19 @@ def _run_local(fn, specs: list, engine: EngineConfig) -> Iterator[Outcome]:
                     result, seconds = future.result()
                 except futures.process.BrokenProcessPool as e:  # a worker died (a crash, the OOM killer)
                     broken = True
-                    outcome = _failed(item, specs, e, queue)
+                    outcome = _failed(item, specs, e, queue, workers)
                 except Exception as e:  # noqa: BLE001 - the episode's own error: retried once, then reported
-                    outcome = _failed(item, specs, e, queue)
+                    outcome = _failed(item, specs, e, queue, workers)
                 else:
                     outcome = Outcome(item.index, specs[item.index], result, None, item.attempts, seconds,
-                                      tuple(item.failures))
+                                      tuple(item.failures), workers)
                 if outcome is not None:
                     yield outcome
             if broken:  # every episode still in the dead pool failed with it: each counts one attempt
                 for future, item in list(running.items()):
                     running.pop(future)
-                    outcome = _failed(item, specs, futures.process.BrokenProcessPool("a worker process died"), queue)
+                    outcome = _failed(item, specs, futures.process.BrokenProcessPool("a worker process died"), queue,
+                                      workers)
                     if outcome is not None:
                         yield outcome
                 pool.shutdown(wait=False, cancel_futures=True)
@@ -228,14 +237,14 @@ def _run_local(fn, specs: list, engine: EngineConfig) -> Iterator[Outcome]:
     pool.shutdown(wait=True)
 
 
-def _failed(item: _Pending, specs: list, error: BaseException | str, queue: list) -> Outcome | None:
+def _failed(item: _Pending, specs: list, error: BaseException | str, queue: list, workers: int) -> Outcome | None:
     """Queue the episode again after its first failure; its failed :class:`Outcome` after the last."""
     item.failures.append(error if isinstance(error, str) else _describe(error))
     if item.attempts < ATTEMPTS:
         queue.append(item)
         return None
     return Outcome(item.index, specs[item.index], None, item.failures[-1], item.attempts, float("nan"),
-                   tuple(item.failures))
+                   tuple(item.failures), workers)
 
 
 # --- ray: one task per episode ----------------------------------------------------------------
@@ -275,8 +284,7 @@ def start_ray(engine: EngineConfig):
     return ray, True
 
 
-def _run_ray(fn, specs: list, engine: EngineConfig) -> Iterator[Outcome]:
-    ray, started = start_ray(engine)
+def _run_ray(fn, specs: list, engine: EngineConfig, ray, started: bool) -> Iterator[Outcome]:
     try:
         # our own retry (ray's max_retries = 0), so both engines retry alike: once, whatever failed
         task = ray.remote(num_cpus=1, max_retries=0)(call_episode)
@@ -298,12 +306,12 @@ def _run_ray(fn, specs: list, engine: EngineConfig) -> Iterator[Outcome]:
                     result, seconds = ray.get(ref)
                 except ray.exceptions.RayTaskError as e:  # the episode raised: name its own error
                     cause = getattr(e, "cause", None)
-                    outcome = _failed(item, specs, cause if isinstance(cause, BaseException) else e, queue)
+                    outcome = _failed(item, specs, cause if isinstance(cause, BaseException) else e, queue, workers)
                 except ray.exceptions.RayError as e:  # the worker died, the node was lost, ...
-                    outcome = _failed(item, specs, e, queue)
+                    outcome = _failed(item, specs, e, queue, workers)
                 else:
                     outcome = Outcome(item.index, specs[item.index], result, None, item.attempts, seconds,
-                                      tuple(item.failures))
+                                      tuple(item.failures), workers)
                 if outcome is not None:
                     yield outcome
     finally:

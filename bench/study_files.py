@@ -116,13 +116,18 @@ def episodes_summary(outcomes: Sequence[Outcome], wall_s: float) -> dict[str, An
         "episodes_per_s": round(len(outcomes) / wall_s, 5) if wall_s > 0 else None,
         "episode_s": {"sum": round(sum(seconds), 3),
                       "median": round(sorted(seconds)[len(seconds) // 2], 3) if seconds else None},
+        # each episode's own time (what one core spends on it: the figure to plan a cluster with)
+        "episode_list": [{"index": o.index, "tag": getattr(o.spec, "tag", None), "attempts": o.attempts,
+                          "episode_s": round(o.episode_s, 3) if o.ok else None} for o in outcomes],
     }
 
 
 def write_study(out: Path, *, study: str, engine: EngineConfig, workers: int | None, outcomes: Sequence[Outcome],
                 wall_s: float, configuration: Mapping[str, Any], seeds: Mapping[str, Any],
                 extra: Mapping[str, Any] | None = None) -> dict[str, Any]:
-    """Write ``out/study.json`` and return what it holds."""
+    """Write ``out/study.json`` and return what it holds (``workers`` None: what the engine used)."""
+    if workers is None:
+        workers = next((o.workers for o in outcomes if o.workers is not None), None)
     data: dict[str, Any] = {
         "study": study, "engine": engine.describe(workers), "configuration": dict(configuration),
         "seeds": dict(seeds), "versions": versions(*(("ray",) if engine.name == "ray" else ())),

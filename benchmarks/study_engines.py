@@ -74,6 +74,7 @@ def main() -> int:
     parser.add_argument("--repeats", type=int, default=3, help="side-by-side repeats; medians are reported")
     parser.add_argument("--no-ray", action="store_true", help="the local engine only")
     parser.add_argument("--json", help="also write the figures to this JSON file")
+    parser.add_argument("--keep", help="keep every run's study folder under this folder (default: a temporary one)")
     args = parser.parse_args()
     engines = [EngineConfig("local", 1), EngineConfig("local", 2)]
     ray = None
@@ -83,7 +84,8 @@ def main() -> int:
     runs: dict[tuple[str, int], list[dict]] = {(e.name, e.workers): [] for e in engines}
     print(f"robustness study: {len(CONDITIONS)} conditions x {args.frames} frames; {args.repeats} repeat(s) of "
           f"{', '.join(f'{e.name} x{e.workers}' for e in engines)}; {os.cpu_count()} CPUs", flush=True)
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as scratch:
+        tmp = args.keep or scratch
         for repeat in range(args.repeats):
             order = engines if repeat % 2 == 0 else engines[::-1]
             for engine in order:
