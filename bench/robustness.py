@@ -250,7 +250,7 @@ def plot_robustness(rows: Sequence[Mapping[str, Any]], figures: Mapping[str, tup
     names = list(dict.fromkeys(r["condition"] for r in rows))
     columns = min(4, max(1, len(names)))
     image_rows = -(-len(names) // columns)
-    fig = plt.figure(figsize=(4.2 * columns, 2.6 * image_rows + 3.4))
+    fig = plt.figure(figsize=(max(10.0, 4.2 * columns), 2.6 * image_rows + 3.4))
     grid = fig.add_gridspec(image_rows + 1, columns * 2, height_ratios=[2.4] * image_rows + [3.0])
     colours = {"default": "lime", "paper": "magenta"}
     for i, name in enumerate(names):
@@ -262,7 +262,8 @@ def plot_robustness(rows: Sequence[Mapping[str, Any]], figures: Mapping[str, tup
             continue
         image = cv2.cvtColor(figure["left"], cv2.COLOR_BGR2RGB)
         x0, y0 = _crop_origin(image, record, figure["scale"])
-        ax.imshow(image[y0:, x0:][: image.shape[0] * 3 // 4, : image.shape[1] * 3 // 4])
+        crop = image[y0:, x0:][: image.shape[0] * 3 // 4, : image.shape[1] * 3 // 4]
+        ax.imshow(crop)
         parts = []
         for mode, key in MODES.items():
             estimate = record.estimate(key) if record is not None else None
@@ -273,6 +274,8 @@ def plot_robustness(rows: Sequence[Mapping[str, Any]], figures: Mapping[str, tup
                 ax.plot(uv[:, 0], uv[:, 1], "-", color=colours[mode], linewidth=1.2,
                         alpha=1.0 if estimate.valid else 0.4, label=mode)
             parts.append(f"{mode} {'valid' if estimate.valid else 'invalid'}")
+        ax.set_xlim(-0.5, crop.shape[1] - 0.5)  # an estimate far off stays inside the picture's frame
+        ax.set_ylim(crop.shape[0] - 0.5, -0.5)
         ax.set_title(f"{name} (frame {figure['index']}): " + ", ".join(parts), fontsize=8)
     x = np.arange(len(names))
     by = {(r["condition"], r["mode"]): r for r in rows}
