@@ -29,7 +29,7 @@ from estimator.centerline import centerline_nodes
 from estimator.colour_model import ArmColourModel
 from estimator.config import EstimatorConfig
 from estimator.correspondence import compensate_nodes, match_rows
-from estimator.edges import subpixel_edges
+from estimator.edges import subpixel_edges, subpixel_edges_and_steps
 from estimator.mount import MountLearner
 from estimator.profile import BASE_RAMP_WIDTHS, BASE_SKIP_WIDTHS, base_ramp, measured_radius_m, with_width_cue
 from estimator.refinement import Centerline2D, edge_distance, refine_centerline
@@ -45,7 +45,7 @@ from estimator.segmentation import (
 from estimator.skeleton import resample_polyline
 from estimator.smoothing import polynomial_smooth, robust_spline_profile
 from estimator.triangulation import triangulate
-from estimator.tube_fit import MIN_CAP_POINTS, RADIUS_BINS, EdgeSet, TubeFit, fit_tube, fuse_radius
+from estimator.tube_fit import EDGE_SIGMA_PX, MIN_CAP_POINTS, RADIUS_BINS, EdgeSet, TubeFit, fit_tube, fuse_radius
 
 COARSE_WIDTH_PX = 320  # the coarse images the arm is looked for on are about this wide
 RADIUS_FIT_SIGMA_M = 0.001  # see _fit_tube
@@ -72,6 +72,8 @@ MIN_CLEAN_CHORDS = 0.9  # below this share of clean chords after one refinement 
 REFINE_PASSES = 1  # chord passes of the 2D refinement (the tube fit does the sub-pixel work since)
 MAX_CORRIDOR_CUT = 0.1  # share of the arm-coloured pixels touching the corridor that it may cut away
 MAX_UNCOVERED = 0.01  # share of arm samples a warm-started chain may leave further than a width from it
+FOCUSED_STEP_PX = 2.0  # an edge's step (its 20-80 % rise) up to this wide counts as focused
+BLURRED_EDGE_SIGMA = 0.3  # beyond it, the edge's sigma grows by this share of the excess width
 EDGE_STRIDE = 1  # every sample of the 2D centerline (3 px apart); every second gave 1.84 mm, not 1.42, on the late ramp
 SIDES = ("left", "right")
 
@@ -135,7 +137,8 @@ class _Side:
     learn: tuple | None = None  # (hsv, gate, mask, offset) of the region: what the colour model learns from
     image: np.ndarray | None = None  # the rectified region of interest (BGR), for sub-pixel edges
     offset: np.ndarray | None = None  # its top-left corner on the rectified canvas
-    edges: tuple | None = None  # (edge points, their chords' centres, (base, tip) ends, outlines at both ends)
+    edges: tuple | None = None  # (edge points, their chords' centres, their steps' widths, (base, tip) ends,
+    #                              outlines at both ends)
 
 
 class CenterlineEstimator:
@@ -497,7 +500,7 @@ class CenterlineEstimator:
             curve = None if r.curve is None else Centerline2D(r.curve.points[::-1], r.curve.valid[::-1],
                                                               r.curve.half_width_px[::-1],
                                                               r.curve.arc_px[-1] - r.curve.arc_px[::-1])
-            edges = None if r.edges is None else (r.edges[0], r.edges[1], r.edges[2][::-1].copy(), r.edges[3][::-1])
+            edges = None if r.edges is None else (*r.edges[:3], r.edges[3][::-1].copy(), r.edges[4][::-1])
             sides["right"] = _Side(r.nodes[::-1].copy(), curve, r.width_px, r.area_px, r.learn, r.image, r.offset,
                                    edges)
 
@@ -611,21 +614,22 @@ class CenterlineEstimator:
         cfg = self.config
         P = self._rect.P["left"]
         f, centre = self._rect.focal_px, np.array([P[0, 2], P[1, 2]])
-        side_ids, xy, chord = [], [], []
+        side_ids, xy, chord, steps = [], [], [], []
         ends = {"base": np.full((2, 2), np.nan), "tip": np.full((2, 2), np.nan)}
         tip_outline: dict[int, np.ndarray] = {}
         for k, side in enumerate(SIDES):
             if sides[side].edges is None:
                 raise _NoArmError(f"no silhouette edges measured in the {side} image")
-            points, centres, (base, tip), outlines = sides[side].edges
+            points, centres, widths, (base, tip), outlines = sides[side].edges
             xy.append((points - centre) / f)
+            steps.append(widths)
             chord.append((centres - centre) / f)
             side_ids.append(np.full(len(points), k))
             ends["base"][k] = (base - centre) / f
             ends["tip"][k] = (tip - centre) / f
             tip_outline[k] = (outlines[1] - centre) / f
         side_ids = np.concatenate(side_ids)
-        edges = EdgeSet(side_ids, np.concatenate(xy), np.concatenate(chord), np.ones(len(side_ids)))
+        edges = EdgeSet(side_ids, np.concatenate(xy), np.concatenate(chord), _edge_weights(np.concatenate(steps)))
         if self._radius is None:
             self._radius = np.full(RADIUS_BINS, cfg.arm_radius_m)
             self._radius_info = np.full(RADIUS_BINS, 1.0 / RADIUS_PRIOR_SIGMA_M**2)
@@ -792,22 +796,36 @@ def _silhouette_edges(image: np.ndarray, mask: np.ndarray, curve: Centerline2D, 
     tangent /= np.linalg.norm(tangent, axis=1, keepdims=True) + 1e-12
     normals = np.column_stack([-tangent[:, 1], tangent[:, 0]])
     pick = curve.valid & (np.arange(len(curve.valid)) % EDGE_STRIDE == 0)
-    offsets, _ = subpixel_edges(image, curve.points - offset, normals, curve.half_width_px, pick)
-    points, centres = [], []
+    offsets, _, steps = subpixel_edges_and_steps(image, curve.points - offset, normals, curve.half_width_px, pick)
+    points, centres, widths = [], [], []
     for column in range(2):
         ok = np.isfinite(offsets[:, column])
         points.append(curve.points[ok] + offsets[ok, column][:, None] * normals[ok])
         centres.append(curve.points[ok])
+        widths.append(steps[ok, column])
     ends = np.array([_subpixel_end(image, offset, curve, end) for end in (0, -1)])
     mask01 = (mask > 0).astype(np.float32)
     outlines = tuple(_end_outline(image, mask01, offset, curve, end) for end in (0, -1))
-    return np.concatenate(points), np.concatenate(centres), ends, outlines
+    return np.concatenate(points), np.concatenate(centres), np.concatenate(widths), ends, outlines
+
+
+def _edge_weights(steps: np.ndarray) -> np.ndarray:
+    """Weight of each edge in the tube fit from how wide its step is: a blurred edge's place is
+    less certain than a focused one's: its sigma grows by ``BLURRED_EDGE_SIGMA`` of the width beyond
+    ``FOCUSED_STEP_PX`` (a focused edge rises over 0.8-1.7 px, shading and anti-aliasing included)."""
+    excess = np.maximum(np.asarray(steps, np.float64) - FOCUSED_STEP_PX, 0.0)
+    sigma = np.sqrt(EDGE_SIGMA_PX**2 + (BLURRED_EDGE_SIGMA * excess) ** 2)
+    return EDGE_SIGMA_PX / sigma
 
 
 def _end_outline(image: np.ndarray, mask01: np.ndarray, offset: np.ndarray, curve: Centerline2D,
                  end: int) -> np.ndarray:
     """Sub-pixel points of the silhouette's outline around one end: rays fanned out from the last
-    clean chord's centre towards the end, each moved from the mask's edge to the image's."""
+    clean chord's centre towards the end, each moved from the mask's edge to the image's.
+
+    The outline keeps its focused-edge sigma when blurred: weighted down like the sides' edges, it
+    measured worse (the twin's blur preset, 100 late-ramp frames: 12 -> 19 frames valid while over
+    10 mm off), since the tip's outline is often all that fixes its depth."""
     inside = np.flatnonzero(curve.valid)
     if len(inside) == 0:
         return np.zeros((0, 2))

@@ -18,6 +18,7 @@ from scipy.interpolate import make_lsq_spline
 
 SAMPLE_SPACING_PX = 3.0
 END_TOLERANCE = 0.04
+RAGGED_SPREADS = 3.0  # a chord within this many robust spreads of its neighbours' width counts as full
 KNOT_SPACING_PX = 24.0
 
 
@@ -236,7 +237,10 @@ def _full_width(arc: np.ndarray, half: np.ndarray, ok: np.ndarray, tolerance: fl
     # Within a width of the ends, chords that cross the end cap's tilted image are off-centre
     # while still nearly full width: hold them to a tighter tolerance.
     near_end = (arc - arc[idx[0]] < 2.0 * typical) | (arc[idx[-1]] - arc < 2.0 * typical)
-    allowed = np.where(near_end, end_tolerance, tolerance) * local
+    # A ragged silhouette (a blurred step's halo half passes the colour gate) spreads every chord's
+    # width: the tolerance grows with that spread, measured along the whole arm.
+    spread = RAGGED_SPREADS * 1.4826 * float(np.median(np.abs(half[idx] / local[idx] - 1.0)))
+    allowed = np.maximum(np.where(near_end, end_tolerance, tolerance), spread) * local
     return coarse & (np.abs(half - local) <= allowed)
 
 

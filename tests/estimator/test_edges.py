@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from estimator.edges import subpixel_edges
+from estimator.edges import subpixel_edges, subpixel_edges_and_steps
 
 SS = 8  # supersampling of the test images
 H, W = 64, 128
@@ -243,3 +243,26 @@ def test_edges_follow_a_slanted_normal():
     offsets, _ = subpixel_edges(to_uint8(image), points, np.tile(n, (9, 1)), np.full(9, 11.5), np.ones(9, bool))
     np.testing.assert_allclose(offsets[:, 0], -11.1 - 0.4, atol=0.1)
     np.testing.assert_allclose(offsets[:, 1], 11.1 - 0.4, atol=0.1)
+
+
+@pytest.mark.parametrize("blur, lo, hi", [("none", 0.6, 1.3), ("gaussian_1.5", 2.3, 3.0), ("box_9", 5.0, 5.8)])
+def test_each_edge_reports_how_wide_its_step_is(blur, lo, hi):
+    """The 20-80 % rise: under a pixel or so for a focused anti-aliased step, about 1.7 sigma for a
+    Gaussian blur and 0.6 of a pan's length; the tube fit trusts a wide step less."""
+    a, b = band(0.25)
+    image = to_uint8(_blurred(band_image(a, b, "light"), blur))
+    rows = np.arange(6, H - 6, dtype=np.float64)
+    points = np.column_stack([np.full(len(rows), 0.5 * (a + b)), rows])
+    normals = np.tile([1.0, 0.0], (len(rows), 1))
+    offsets, _, steps = subpixel_edges_and_steps(image, points, normals, np.full(len(rows), 0.5 * (b - a)),
+                                                 np.ones(len(rows), bool))
+    assert np.all(np.isfinite(offsets))
+    assert lo <= np.min(steps) and np.max(steps) <= hi, (np.min(steps), np.max(steps))
+
+
+def test_edges_not_found_report_no_step():
+    image = to_uint8(band_image(*band(0.0), "light"))
+    points = np.array([[58.0, 20.0], [58.0, 30.0]])
+    _, _, steps = subpixel_edges_and_steps(image, points, np.tile([1.0, 0.0], (2, 1)), np.full(2, 18.0),
+                                           np.array([False, True]))
+    assert np.all(steps[0] == 0.0) and np.all(steps[1] > 0.0)

@@ -56,8 +56,8 @@ def _summary(results, condition):
 # Measured failures (default mode, these seeds, estimator at commit 59a18e3), each marked xfail(strict) until fixed.
 # A 9 px pan over the brick wall is the hard case: without the wall the same frames are within 1 mm.
 FALSE_VALID: dict[str, str] = {}  # blur's base 53 mm off came back valid until a hidden base was refused
-INACCURATE = {"blur": "4 of 5 valid (s_curve: 'barely constrain ... point 0: 42 mm'), pooled RMSE of the valid 5.4 mm "
-                      "(towards_camera 9.8, c_bend 2.9, three_d 2.6, straight 2.6)"}
+# blur was 4 of 5 valid at 5.4 mm (towards_camera 9.8) until blurred edges were weighted by their step's width.
+INACCURATE: dict[str, str] = {}
 
 
 def _conditions(known: dict):
