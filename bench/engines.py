@@ -218,8 +218,7 @@ def _run_local(fn, specs: list, engine: EngineConfig) -> Iterator[Outcome]:
                 except Exception as e:  # noqa: BLE001 - the episode's own error: retried once, then reported
                     outcome = _failed(item, specs, e, queue, workers)
                 else:
-                    outcome = Outcome(item.index, specs[item.index], result, None, item.attempts, seconds,
-                                      tuple(item.failures), workers)
+                    outcome = _succeeded(item, specs, result, seconds, workers)
                 if outcome is not None:
                     yield outcome
             if broken:  # every episode still in the dead pool failed with it: each counts one attempt
@@ -235,6 +234,11 @@ def _run_local(fn, specs: list, engine: EngineConfig) -> Iterator[Outcome]:
         pool.shutdown(wait=False, cancel_futures=True)
         raise
     pool.shutdown(wait=True)
+
+
+def _succeeded(item: _Pending, specs: list, result, seconds: float, workers: int) -> Outcome:
+    """The :class:`Outcome` of an episode that returned (after any earlier failed attempts)."""
+    return Outcome(item.index, specs[item.index], result, None, item.attempts, seconds, tuple(item.failures), workers)
 
 
 def _failed(item: _Pending, specs: list, error: BaseException | str, queue: list, workers: int) -> Outcome | None:
@@ -310,8 +314,7 @@ def _run_ray(fn, specs: list, engine: EngineConfig, ray, started: bool) -> Itera
                 except ray.exceptions.RayError as e:  # the worker died, the node was lost, ...
                     outcome = _failed(item, specs, e, queue, workers)
                 else:
-                    outcome = Outcome(item.index, specs[item.index], result, None, item.attempts, seconds,
-                                      tuple(item.failures), workers)
+                    outcome = _succeeded(item, specs, result, seconds, workers)
                 if outcome is not None:
                     yield outcome
     finally:

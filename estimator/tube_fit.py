@@ -251,6 +251,20 @@ def _residual_of(kind, C, D, r, x, y, extra):
 
 
 @numba.njit(cache=True, nogil=True)
+def _axis_at(control, first, values, deriv, shift_x, C, D):
+    """The axis point C and its derivative D from one observation's basis (into C, D), in the frame of
+    the camera ``shift_x`` metres along x from the left one (the right camera: the baseline)."""
+    for c in range(3):
+        C[c] = 0.0
+        D[c] = 0.0
+    for j in range(DEGREE + 1):
+        for c in range(3):
+            C[c] += values[j] * control[first + j, c]
+            D[c] += deriv[j] * control[first + j, c]
+    C[0] -= shift_x
+
+
+@numba.njit(cache=True, nogil=True)
 def _bases(knots, count, us):
     """The B-spline basis at every observation's u: (first control point (n,), values (n, 4),
     derivatives (n, 4)). They change only when observations are re-attached, not with the control
@@ -292,15 +306,7 @@ def _normal_equations(bases, control, radii, bins, baseline, focal, kinds, sides
         first = firsts[i]
         values = all_values[i]
         deriv = all_derivs[i]
-        for c in range(3):
-            C[c] = 0.0
-            D[c] = 0.0
-        for j in range(DEGREE + 1):
-            for c in range(3):
-                C[c] += values[j] * control[first + j, c]
-                D[c] += deriv[j] * control[first + j, c]
-        if sides[i] == 1:
-            C[0] -= baseline
+        _axis_at(control, first, values, deriv, baseline if sides[i] == 1 else 0.0, C, D)
         rj = bins[i]
         r = radii[rj]
         res = _residual_of(kinds[i], C, D, r, xs[i], ys[i], extras[i])
@@ -643,14 +649,6 @@ def _edge_sides(knots, control, baseline, sides, us, xy, centres):
     D = np.empty(3)
     for i in range(sides.shape[0]):
         first, values, deriv = basis(knots, count, us[i])
-        for c in range(3):
-            C[c] = 0.0
-            D[c] = 0.0
-        for j in range(DEGREE + 1):
-            for c in range(3):
-                C[c] += values[j] * control[first + j, c]
-                D[c] += deriv[j] * control[first + j, c]
-        if sides[i] == 1:
-            C[0] -= baseline
+        _axis_at(control, first, values, deriv, baseline if sides[i] == 1 else 0.0, C, D)
         out[i] = _side_of(C, D, xy[i, 0] - centres[i, 0], xy[i, 1] - centres[i, 1])
     return out
