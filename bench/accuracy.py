@@ -170,7 +170,7 @@ def accuracy_command(args) -> int:
     from bench.engines import EngineError, engine_from_args, run_episodes, workers_used
     from bench.episodes import sequence_episode, sequence_spec
     from bench.frame_record import FrameRecord
-    from bench.study_files import out_folder, write_results, write_study
+    from bench.study_files import finish_study, out_folder, write_results, write_study
     from twin.twin import TwinConfig
 
     try:
@@ -210,7 +210,8 @@ def accuracy_command(args) -> int:
             record = FrameRecord.from_json(record_json)
             m = record.main
             rows += point_rows(index, outcome.spec.tag, m.valid, m.reason, m.points_m, m.left_uv, record.gt_m)
-    try:
+
+    def work():
         headline = write_accuracy_study(rows, out, frames)
         write_results(out, [variant_summary(rows, name, frames) for name in VARIANTS],
                       ("variant", "frames", "valid", "rmse_mm", "rmse_x_mm", "rmse_y_mm", "rmse_z_mm", "max_mm"))
@@ -219,10 +220,6 @@ def accuracy_command(args) -> int:
                                                   "frames": frames, "scene": twin.scene_preset,
                                                   "variants": VARIANTS, "estimator": base.as_dict()},
                     seeds={"render_noise": twin.seed, "scene": twin.scene_seed, "som": base.som_seed})
-    except OSError as e:
-        print(f"softarm study accuracy: cannot write the study to {out}: {e}", file=sys.stderr)
-        return 1
-    print(f"softarm study accuracy: wrote {out}")
-    for line in headline:
-        print(line)
-    return 0 if all(o.ok for o in outcomes) else 1
+        return headline, all(o.ok for o in outcomes)
+
+    return finish_study("accuracy", out, work)

@@ -32,7 +32,7 @@ from bench.engines import EngineConfig, EngineError, engine_from_args, run_episo
 from bench.episodes import SequenceSpec, sequence_episode, sequence_spec, twin_config
 from bench.frame_record import FrameRecord
 from bench.scoring import pooled_rmse
-from bench.study_files import out_folder, write_results, write_study
+from bench.study_files import finish_study, out_folder, write_results, write_study
 
 CONDITIONS = ("clean", "lab", "dim", "bright_warm", "blur", "occluded", "random")
 DEFAULT_FRAMES = 60
@@ -336,16 +336,10 @@ def robustness_command(args) -> int:
     out = out_folder(args, config, "robustness")
     print(f"softarm study robustness: {len(conditions)} conditions x {frames} frames on the {engine.name} engine ...",
           flush=True)
-    try:
+
+    def work():
         result = robustness_study(config, conditions, frames, out, engine,
                                   progress=not getattr(args, "no_progress", False))
-    except (ConfigError, EngineError) as e:
-        print(f"softarm study robustness: {e}; nothing written", file=sys.stderr)
-        return 1
-    except OSError as e:
-        print(f"softarm study robustness: cannot write the study to {out}: {e}", file=sys.stderr)
-        return 1
-    print(f"softarm study robustness: wrote {out}")
-    for line in result["headline"]:
-        print(line)
-    return 0 if not result["study"]["failed"] else 1
+        return result["headline"], not result["study"]["failed"]
+
+    return finish_study("robustness", out, work, (ConfigError, EngineError))

@@ -49,7 +49,7 @@ from bench.episodes import sequence_episode, sequence_spec
 from bench.frame_record import FrameRecord
 from bench.process import Capture, process
 from bench.recording import write_json
-from bench.study_files import out_folder, write_results, write_study
+from bench.study_files import finish_study, out_folder, write_results, write_study
 from estimator import CalibrationFileError, CenterlineEstimator, EstimatorConfig, StereoCalibration
 from estimator.centerline import centerline_nodes
 from estimator.config import CENTERLINES
@@ -135,7 +135,8 @@ def study_command(args) -> int:
         print(f"softarm study {which}: {e}; nothing written", file=sys.stderr)
         return 1
     study = som_study if which == "som" else compare_study
-    try:
+
+    def work():
         out.mkdir(parents=True, exist_ok=True)
         result = study(frames, calibration, config.estimator_config(), out, engine, progress=progress)
         write_study(out, study=which, engine=engine, workers=workers_used(engine, result["episodes"]),
@@ -143,16 +144,9 @@ def study_command(args) -> int:
                     configuration={"config": str(config.path), "experiment": config.experiment, "frames": n,
                                    "estimator": config.estimator_config().as_dict()},
                     seeds={"som": config.estimator_config().som_seed, "experiment": config.experiment.seed})
-    except (NoArmInFramesError, StudyEpisodeError, EngineError) as e:
-        print(f"softarm study {which}: {e}", file=sys.stderr)
-        return 1
-    except OSError as e:
-        print(f"softarm study {which}: cannot write the study to {out}: {e}", file=sys.stderr)
-        return 1
-    print(f"softarm study {which}: wrote {out}")
-    for line in result["headline"]:
-        print(line)
-    return 0
+        return result["headline"], True
+
+    return finish_study(which, out, work, (NoArmInFramesError, StudyEpisodeError, EngineError), may_have_written=True)
 
 
 class NoArmInFramesError(ValueError):

@@ -15,7 +15,8 @@ from __future__ import annotations
 import csv
 import math
 import platform
-from collections.abc import Iterable, Mapping, Sequence
+import sys
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -136,3 +137,25 @@ def write_study(out: Path, *, study: str, engine: EngineConfig, workers: int | N
     data.update(extra or {})
     write_json(Path(out) / STUDY, data)
     return data
+
+
+def finish_study(which: str, out: Path, work: Callable[[], tuple[Sequence[str], bool]],
+                 errors: tuple[type[BaseException], ...] = (), *, may_have_written: bool = False) -> int:
+    """Run a study command's last step and report it as every study does; the exit status.
+
+    ``work`` writes the study and returns its headline lines and whether every episode completed.
+    An expected error (``errors``) or a failed write is one line on stderr (exit 1); otherwise the
+    folder and the headline are printed (exit 1 when an episode failed, else 0).
+    """
+    try:
+        headline, complete = work()
+    except errors as e:
+        print(f"softarm study {which}: {e}{'' if may_have_written else '; nothing written'}", file=sys.stderr)
+        return 1
+    except OSError as e:
+        print(f"softarm study {which}: cannot write the study to {out}: {e}", file=sys.stderr)
+        return 1
+    print(f"softarm study {which}: wrote {out}")
+    for line in headline:
+        print(line)
+    return 0 if complete else 1

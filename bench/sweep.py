@@ -54,7 +54,7 @@ from bench.engines import EngineConfig, EngineError, engine_from_args, run_episo
 from bench.episodes import sequence_episode, sequence_spec, twin_config
 from bench.frame_record import FrameRecord
 from bench.robustness import summarize_mode
-from bench.study_files import out_folder, write_results, write_study
+from bench.study_files import finish_study, out_folder, write_results, write_study
 from estimator import EstimatorConfig
 from estimator.config_file import ConfigFileError, TableReader, choice, integer, number, read_toml
 
@@ -352,15 +352,9 @@ def sweep_command(args) -> int:
         print(f"softarm study sweep: {e}", file=sys.stderr)
         return 2
     out = out_folder(args, config, "sweep")
-    try:
+
+    def work():
         result = sweep_study(config, grid, out, engine, progress=not getattr(args, "no_progress", False))
-    except (ConfigFileError, EngineError) as e:
-        print(f"softarm study sweep: {e}; nothing written", file=sys.stderr)
-        return 1
-    except OSError as e:
-        print(f"softarm study sweep: cannot write the study to {out}: {e}", file=sys.stderr)
-        return 1
-    print(f"softarm study sweep: wrote {out}")
-    for line in result["headline"]:
-        print(line)
-    return 0 if not result["study"]["failed"] else 1
+        return result["headline"], not result["study"]["failed"]
+
+    return finish_study("sweep", out, work, (ConfigFileError, EngineError))
