@@ -120,49 +120,16 @@ def _trace(points: np.ndarray, adjacency: list[list[int]], branches: list[list[i
            start: tuple[int, bool]) -> Trace:
     """Walk from a skeleton end: at each junction or gap the least-bending branch of about the
     tube's width; a branch that widens (a distractor the tube touches) ends the walk there."""
-    from estimator.skeleton import _direction
-
-    bi, first = start
-    path = list(branches[bi] if first else branches[bi][::-1])
-    used = {bi}
+    from estimator.skeleton import least_bending_walk
 
     def half_of(ids):
         return float(np.median(distance[points[ids, 1].astype(int), points[ids, 0].astype(int)]))
 
-    half = half_of(path)
-    while True:
-        tail = path[-1]
-        span = max(4, int(2 * half))
-        heading = _direction(points, path, at_end=True, span=span)
-        gap_px = GAP_WIDTHS * 2.0 * half
-        best, best_cost = None, np.inf
-        for cj, cand in enumerate(branches):
-            if cj in used:
-                continue
-            for reverse in (False, True):
-                c = cand[::-1] if reverse else cand
-                gap = float(np.linalg.norm(points[c[0]] - points[tail]))
-                connected = c[0] == tail or c[0] in adjacency[tail]
-                if not connected and gap > gap_px:
-                    continue
-                if not 0.5 <= half_of(c) / max(half, 1e-9) <= 2.0:
-                    continue
-                out = _direction(points, c, at_end=False, span=span)
-                if not connected:
-                    back = points[path[max(0, len(path) - span)]]
-                    step = (points[c[0]] - back) / max(float(np.linalg.norm(points[c[0]] - back)), 1e-9)
-                    if step @ heading < 0.5:
-                        continue
-                    out = (out + step) / 2
-                if out @ heading < 0.0:  # a tube does not turn back on itself at a junction
-                    continue
-                cost = 1.0 - float(out @ heading) + (0.0 if connected else gap / gap_px)
-                if cost < best_cost:
-                    best, best_cost = (cj, c), cost
-        if best is None:
-            break
-        used.add(best[0])
-        path.extend(best[1][1:] if best[1][0] == tail else best[1])
+    half = half_of(branches[start[0]])
+    # A branch about the tube's width may continue it, and a tube does not turn back on itself at a junction.
+    path = least_bending_walk(points, adjacency, branches, start, span=max(4, int(2 * half)),
+                              gap_px=GAP_WIDTHS * 2.0 * half,
+                              keep=lambda c: 0.5 <= half_of(c) / max(half, 1e-9) <= 2.0, turn_back=False)
     ids = np.array(path)
     values = distance[points[ids, 1].astype(int), points[ids, 0].astype(int)]
     half = float(np.median(values))

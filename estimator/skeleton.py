@@ -9,6 +9,8 @@ spirit of mBEST; the default mode uses it to start the SOM when there is no prev
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import cv2
 import numba
 import numpy as np
@@ -137,6 +139,54 @@ def _direction(points: np.ndarray, path: list[int], at_end: bool, span: int = 8)
     return d / norm if norm > 0 else d
 
 
+def least_bending_walk(points: np.ndarray, adjacency: list[list[int]], branches: list[list[int]],
+                       start: tuple[int, bool], *, span: int, gap_px: float,
+                       keep: Callable[[list[int]], bool] | None = None, turn_back: bool = True) -> list[int]:
+    """Indices into ``points`` of a walk over skeleton branches from one branch's end (``start``:
+    the branch and whether it is walked from its first point): at each junction, or across a gap of
+    at most ``gap_px`` from a free end, it continues along the branch that bends least from the
+    heading over the last ``span`` points.
+
+    Args:
+        keep: a candidate branch (in walking order) may be taken only where this holds.
+        turn_back: whether the walk may leave a junction at more than 90 degrees from its heading.
+    """
+    bi, first = start
+    used = {bi}
+    path = list(branches[bi] if first else branches[bi][::-1])
+    while True:
+        tail = path[-1]
+        heading = _direction(points, path, at_end=True, span=span)
+        best, best_cost = None, np.inf
+        for cj, cand in enumerate(branches):
+            if cj in used:
+                continue
+            for reverse in (False, True):
+                c = cand[::-1] if reverse else cand
+                gap = float(np.linalg.norm(points[c[0]] - points[tail]))
+                connected = c[0] == tail or c[0] in adjacency[tail]
+                if not connected and gap > gap_px:
+                    continue
+                if keep is not None and not keep(c):
+                    continue
+                out = _direction(points, c, at_end=False, span=span)
+                if not connected:
+                    back = points[path[max(0, len(path) - span)]]
+                    step = (points[c[0]] - back) / max(float(np.linalg.norm(points[c[0]] - back)), 1e-9)
+                    if step @ heading < 0.5:
+                        continue
+                    out = (out + step) / 2
+                if not turn_back and out @ heading < 0.0:
+                    continue
+                cost = 1.0 - float(out @ heading) + (0.0 if connected else gap / gap_px)
+                if cost < best_cost:
+                    best, best_cost = (cj, c), cost
+        if best is None:
+            return path
+        used.add(best[0])
+        path.extend(best[1][1:] if best[1][0] == tail else best[1])
+
+
 def ordered_skeleton_path(mask: np.ndarray, base_hint: np.ndarray | None = None, spur_px: float | None = None,
                           gap_px: float | None = None) -> np.ndarray:
     """Walk the mask's skeleton from the base end to the far end.
@@ -174,38 +224,8 @@ def ordered_skeleton_path(mask: np.ndarray, base_hint: np.ndarray | None = None,
     else:
         key = [np.linalg.norm(points[branches[bi][0 if first else -1]] - base_hint) for bi, first in ends]
     bi, first = ends[int(np.argmin(key))]
-    used = {bi}
-    path = list(branches[bi] if first else branches[bi][::-1])
     span = max(8, int(width))  # long enough to look past the hooked ends thinning leaves
-    while True:
-        tail = path[-1]
-        heading = _direction(points, path, at_end=True, span=span)
-        # Continue through a junction, or jump a gap from a free end, with the least bending.
-        best, best_cost = None, np.inf
-        for cj, cand in enumerate(branches):
-            if cj in used:
-                continue
-            for reverse in (False, True):
-                c = cand[::-1] if reverse else cand
-                gap = np.linalg.norm(points[c[0]] - points[tail])
-                connected = c[0] == tail or c[0] in adjacency[tail]
-                if not connected and gap > gap_px:
-                    continue
-                out = _direction(points, c, at_end=False, span=span)
-                if not connected:
-                    back = points[path[max(0, len(path) - span)]]
-                    step = (points[c[0]] - back) / max(np.linalg.norm(points[c[0]] - back), 1e-9)
-                    if step @ heading < 0.5:
-                        continue
-                    out = (out + step) / 2
-                cost = 1.0 - float(out @ heading) + (0.0 if connected else gap / gap_px)
-                if cost < best_cost:
-                    best, best_cost = (cj, c), cost
-        if best is None:
-            break
-        used.add(best[0])
-        path.extend(best[1][1:] if best[1][0] == tail else best[1])
-    return points[path]
+    return points[least_bending_walk(points, adjacency, branches, (bi, first), span=span, gap_px=gap_px)]
 
 
 def arm_width_px(mask: np.ndarray, skeleton: np.ndarray | None = None) -> float:
