@@ -118,6 +118,46 @@ def _matte_program_cache(pyrender):
 
     return MatteShaderCache()
 
+@functools.cache
+def _ordered_scene_class(pyrender):
+    """pyrender's scene, numbering its nodes in the order they are added and handing out its lights
+    in that order.
+
+    pyrender keeps nodes in sets, which iterate in the order of memory addresses: the order the
+    lights were bound in (the shader sums them in that order) and the order of meshes at the same
+    distance (the parts of one object share its pose) differed from one renderer to the next, so a
+    process's first renderer and a later one drew edge pixels a level apart (measured on blurred
+    frames). With this scene and ``_drawing_order`` a scene draws the same pixels in any process.
+    """
+
+    class OrderedScene(pyrender.Scene):
+        def __init__(self, *args, **kwargs):
+            self.serials: dict = {}  # node -> when it was added
+            super().__init__(*args, **kwargs)
+
+        def add_node(self, node, parent_node=None):
+            self.serials.setdefault(node, len(self.serials))
+            return super().add_node(node, parent_node)
+
+        def remove_node(self, node):
+            super().remove_node(node)
+            self.serials.pop(node, None)
+
+        @property
+        def light_nodes(self):
+            return sorted(super().light_nodes, key=self.serials.__getitem__)
+
+    return OrderedScene
+
+
+def _drawing_order(scene) -> list:
+    """The mesh nodes as pyrender draws them: opaque before transparent, far before near (pyrender's
+    rule), and nodes at the same distance in the order they were added (``_ordered_scene_class``)."""
+    eye = scene.get_pose(scene.main_camera_node)[:3, 3]
+    return sorted(scene.mesh_nodes, key=lambda n: (
+        bool(n.mesh.is_transparent), -float(np.linalg.norm(scene.get_pose(n)[:3, 3] - eye)), scene.serials[n]))
+
+
 EGL_HINT = ("install the EGL and Mesa OpenGL runtime, e.g. on Debian/Ubuntu "
             "`apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libopengl0` (Mesa's llvmpipe "
             "renders on the CPU), and keep PYOPENGL_PLATFORM=egl (set by twin before pyrender is imported)")
@@ -290,7 +330,7 @@ class StereoRenderer:
         backdrop = self.scene.backdrop
         background = look.background_rgb if backdrop is None else backdrop.surface.rgb
         ambient, lights = self._lights()
-        self._scene = pyrender.Scene(bg_color=np.append(np.asarray(background)[::-1], 1.0), ambient_light=ambient)
+        self._scene = _ordered_scene_class(pyrender)(bg_color=np.append(np.asarray(background)[::-1], 1.0), ambient_light=ambient)
         self._camera_nodes = {}
         for side in _SIDES:
             K = self._eyes[side].K_canvas
@@ -326,6 +366,8 @@ class StereoRenderer:
             raise RenderBackendError(f"cannot create an offscreen EGL context ({type(e).__name__}: {e}); "
                                      f"{EGL_HINT}") from e
         _keep_egl_display(self._renderer._platform)
+        if hasattr(self._renderer._renderer, "_sorted_mesh_nodes"):
+            self._renderer._renderer._sorted_mesh_nodes = _drawing_order
         # Linear light = base * (ambient + directional * cos); see _MATTE_FRAG.
         if hasattr(self._renderer._renderer, "_program_cache"):
             self._renderer._renderer._program_cache = _matte_program_cache(pyrender)

@@ -238,6 +238,29 @@ def test_fast_scissored_readback_matches_pyrenders_full_render(rig):
     np.testing.assert_allclose(a.depth_left_m[finite], b.depth_left_m[finite], atol=1e-4)
 
 
+def test_lights_and_equally_distant_meshes_are_drawn_in_the_order_they_were_added():
+    """pyrender iterates sets (memory order): a process's first renderer and a later one summed the
+    lights in another order and drew a blurred frame's edge pixels a level apart."""
+    from twin.render import _drawing_order, _gl, _ordered_scene_class
+
+    pyrender, _ = _gl()
+    scene = _ordered_scene_class(pyrender)()
+    scene.main_camera_node = scene.add(pyrender.PerspectiveCamera(yfov=1.0), pose=np.eye(4))
+    far = np.eye(4)
+    far[2, 3] = -2.0
+    triangle = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
+    meshes = [scene.add(pyrender.Mesh([pyrender.Primitive(positions=triangle)]), pose=far, name=f"part{k}")
+              for k in range(12)]
+    near = scene.add(pyrender.Mesh([pyrender.Primitive(positions=triangle)]), pose=np.eye(4), name="near")
+    lights = [scene.add(pyrender.DirectionalLight(intensity=k + 1.0), pose=np.eye(4)) for k in range(6)]
+    assert _drawing_order(scene) == meshes + [near]  # far before near, ties as added
+    assert list(scene.light_nodes) == lights
+    scene.remove_node(meshes[3])
+    scene.remove_node(lights[0])
+    assert _drawing_order(scene) == meshes[:3] + meshes[4:] + [near]
+    assert list(scene.light_nodes) == lights[1:]
+
+
 def test_renderers_live_side_by_side_and_dropping_one_spares_the_others(rig):
     """pyrender's own clean-up terminates the process-wide EGL display; ours must not."""
     import gc
