@@ -15,10 +15,16 @@ it runs, and every engine gives the same results::
   cluster's CPUs), on the Ray at ``ray_address`` or on a local Ray started for the study (and
   stopped after it; a Ray already running in this process is used and left running).
 
+Episodes start in the order given, or longest first when the caller says what each is expected
+to cost (``cost``): with a few episodes of unequal length on a few workers, the long ones started
+last would leave the other workers idle at the end (the robustness study's blurred and random
+scenes draw four times per frame and take half as long again as the others).
+
 Either way, an episode that raises (or whose worker dies) is tried once more; one that fails twice
 is reported in its :class:`Outcome` (``error``) and the others complete. Each episode runs on one
-core (OpenCV's and the CPU renderer's threads set to 1, as Ray sets for a task of one CPU), so N
-workers use N cores (the estimator still measures the right image's edges in a thread of its own).
+core (OpenCV's and the CPU renderer's threads set to 1, as Ray sets for a task of one CPU, and the
+estimator's second image on the same thread as the first), so N workers use N cores and the
+episodes per hour per core a study reports are one core's.
 """
 
 from __future__ import annotations
@@ -117,11 +123,15 @@ def _one_core() -> None:
     os.environ.setdefault("LP_NUM_THREADS", "1")
     import cv2
 
+    import estimator
+
     cv2.setNumThreads(1)
+    estimator.use_second_thread(False)
 
 
 def stream_episodes(fn: Callable[[Any], Any], specs: Sequence[Any], engine: EngineConfig | None = None, *,
-                    label: str = "episodes", progress: bool = True) -> Iterator[Outcome]:
+                    label: str = "episodes", progress: bool = True,
+                    cost: Callable[[Any], float] | None = None) -> Iterator[Outcome]:
     """Run ``fn`` on every spec and yield each :class:`Outcome` as it finishes.
 
     Args:
@@ -130,6 +140,8 @@ def stream_episodes(fn: Callable[[Any], Any], specs: Sequence[Any], engine: Engi
         engine: where to run them; None: the local pool on every CPU.
         label: the progress bar's label.
         progress: show a progress bar on stderr.
+        cost: a spec's expected cost in any unit; the costliest episodes start first (ties in the
+            order given). None: in the order given.
 
     Raises:
         EngineError: the ray engine without Ray installed, or a cluster that cannot be reached.
@@ -140,13 +152,18 @@ def stream_episodes(fn: Callable[[Any], Any], specs: Sequence[Any], engine: Engi
         return
     from tqdm import tqdm
 
+    order = list(range(len(specs)))
+    if cost is not None:
+        costs = [float(cost(spec)) for spec in specs]
+        order.sort(key=lambda i: -costs[i])
     if engine.name == "local":
-        runner = _run_local
+        def runner(fn, specs, engine):
+            return _run_local(fn, specs, engine, order)
     else:
         ray, started = start_ray(engine)  # connected (or refused) before the progress bar shows
 
         def runner(fn, specs, engine):
-            return _run_ray(fn, specs, engine, ray, started)
+            return _run_ray(fn, specs, engine, order, ray, started)
     failed = 0
     with tqdm(total=len(specs), desc=label, unit="episode", file=sys.stderr, disable=not progress,
               dynamic_ncols=True) as bar:
@@ -161,9 +178,10 @@ def stream_episodes(fn: Callable[[Any], Any], specs: Sequence[Any], engine: Engi
 
 
 def run_episodes(fn: Callable[[Any], Any], specs: Sequence[Any], engine: EngineConfig | None = None, *,
-                 label: str = "episodes", progress: bool = True) -> list[Outcome]:
-    """Every episode's :class:`Outcome`, in the order of ``specs`` (whatever order they finished in)."""
-    outcomes = list(stream_episodes(fn, specs, engine, label=label, progress=progress))
+                 label: str = "episodes", progress: bool = True,
+                 cost: Callable[[Any], float] | None = None) -> list[Outcome]:
+    """Every episode's :class:`Outcome`, in the order of ``specs`` (whatever order they started or finished in)."""
+    outcomes = list(stream_episodes(fn, specs, engine, label=label, progress=progress, cost=cost))
     return sorted(outcomes, key=lambda o: o.index)
 
 
@@ -193,11 +211,15 @@ def _describe(error: BaseException) -> str:
     return f"{type(error).__name__}: {error}"
 
 
-def _run_local(fn, specs: list, engine: EngineConfig) -> Iterator[Outcome]:
+def _queue(order: list[int]) -> list[_Pending]:
+    """The episodes waiting to start: ``pop()`` takes them in ``order`` (a retry is appended, so it goes next)."""
+    return [_Pending(i) for i in reversed(order)]
+
+
+def _run_local(fn, specs: list, engine: EngineConfig, order: list[int]) -> Iterator[Outcome]:
     workers = workers_for(engine, len(specs))
     context = multiprocessing.get_context("spawn")
-    queue = [_Pending(i) for i in range(len(specs))]
-    queue.reverse()  # pop() takes them in spec order
+    queue = _queue(order)
     pool = futures.ProcessPoolExecutor(max_workers=workers, mp_context=context)
     running: dict[futures.Future, _Pending] = {}
     try:
@@ -288,15 +310,14 @@ def start_ray(engine: EngineConfig):
     return ray, True
 
 
-def _run_ray(fn, specs: list, engine: EngineConfig, ray, started: bool) -> Iterator[Outcome]:
+def _run_ray(fn, specs: list, engine: EngineConfig, order: list[int], ray, started: bool) -> Iterator[Outcome]:
     try:
         # our own retry (ray's max_retries = 0), so both engines retry alike: once, whatever failed
         task = ray.remote(num_cpus=1, max_retries=0)(call_episode)
         cpus = int(ray.cluster_resources().get("CPU", 1))
         workers = max(1, min(engine.workers or cpus, len(specs)))
         fn_ref = ray.put(fn)
-        queue = [_Pending(i) for i in range(len(specs))]
-        queue.reverse()
+        queue = _queue(order)
         running: dict[Any, _Pending] = {}
         while queue or running:
             while queue and len(running) < workers:

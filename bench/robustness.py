@@ -29,7 +29,7 @@ import numpy as np
 
 from bench.config import BenchConfig, ConfigError, load_bench_config
 from bench.engines import EngineConfig, EngineError, engine_from_args, run_episodes, workers_used
-from bench.episodes import SequenceSpec, sequence_episode, sequence_spec, twin_config
+from bench.episodes import SequenceSpec, expected_cost, sequence_episode, sequence_spec, twin_config
 from bench.frame_record import FrameRecord
 from bench.scoring import pooled_rmse
 from bench.study_files import finish_study, out_folder, write_results, write_study
@@ -159,7 +159,8 @@ def robustness_study(config: BenchConfig, conditions: Sequence[Condition], frame
     for spec in {s.preset: s for s in specs}.values():
         twin_config(spec)  # an unknown preset is an error now, naming the scene file's presets
     start = time.perf_counter()
-    outcomes = run_episodes(sequence_episode, specs, engine, label="robustness", progress=progress)
+    outcomes = run_episodes(sequence_episode, specs, engine, label="robustness", progress=progress,
+                            cost=expected_cost)
     wall_s = time.perf_counter() - start
     rows, figures, frame_rows = [], {}, []
     for condition, outcome in zip(conditions, outcomes, strict=True):

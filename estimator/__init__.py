@@ -11,6 +11,7 @@ rendering or devices.
 
 from estimator.calibration import CalibrationFileError, StereoCalibration
 from estimator.config import EstimatorConfig
-from estimator.pipeline import CenterlineEstimator, EstimateResult
+from estimator.pipeline import CenterlineEstimator, EstimateResult, use_second_thread
 
-__all__ = ["CalibrationFileError", "CenterlineEstimator", "EstimateResult", "EstimatorConfig", "StereoCalibration"]
+__all__ = ["CalibrationFileError", "CenterlineEstimator", "EstimateResult", "EstimatorConfig", "StereoCalibration",
+           "use_second_thread"]

@@ -269,17 +269,22 @@ class CenterlineEstimator:
 
     def _process_both(self, left_bgr: np.ndarray, right_bgr: np.ndarray, timings: dict) -> dict[str, _Side]:
         """Both images at once: the right one on a worker thread (OpenCV and the compiled
-        stages release the GIL), the left one here. Stage timings add up both images."""
+        stages release the GIL), the left one here (or one after the other, see
+        ``use_second_thread``). Stage timings add up both images."""
         located = {side: None for side in SIDES}
         if self.config.roi:
             with _timed(timings, "locate"):
                 located = self._locate({"left": left_bgr, "right": right_bgr})
         right_timings: dict[str, float] = {}
-        future = _worker().submit(self._process_side, right_bgr, "right", right_timings, located["right"])
-        try:
+        if _SECOND_THREAD:
+            future = _worker().submit(self._process_side, right_bgr, "right", right_timings, located["right"])
+            try:
+                left = self._process_side(left_bgr, "left", timings, located["left"])
+            finally:
+                right = future.exception() or future.result()  # always wait: the worker shares state
+        else:
             left = self._process_side(left_bgr, "left", timings, located["left"])
-        finally:
-            right = future.exception() or future.result()  # always wait: the worker shares state
+            right = self._process_side(right_bgr, "right", right_timings, located["right"])
         for stage, ms in right_timings.items():
             timings[stage] = timings.get(stage, 0.0) + ms
         if isinstance(right, BaseException):
@@ -759,7 +764,20 @@ class CenterlineEstimator:
 # --- helpers ------------------------------------------------------------------------------
 
 
+_SECOND_THREAD = True  # see use_second_thread
 _WORKER: ThreadPoolExecutor | None = None
+
+
+def use_second_thread(enabled: bool) -> None:
+    """Whether estimators process the right image on a thread of their own (the default) while the
+    left one runs on the caller's thread, or both on the caller's thread.
+
+    A process that owns one core (a study's worker, a Ray task of one CPU) turns it off: the second
+    thread would take time from the other workers' cores, and its speed would not be one core's.
+    The results are the same either way.
+    """
+    global _SECOND_THREAD
+    _SECOND_THREAD = bool(enabled)
 _WORKER_LOCK = threading.Lock()
 
 

@@ -18,6 +18,18 @@ def test_results_come_back_in_spec_order_from_separate_processes():
     assert os.getpid() not in {o.result["pid"] for o in outcomes}  # not run in the caller's process
 
 
+def test_the_costliest_episodes_start_first_and_results_stay_in_spec_order():
+    costs = [1.0, 5.0, 2.0, 5.0, 9.0]
+    specs = [{"x": x, "cost": c} for x, c in enumerate(costs)]
+    one = EngineConfig("local", workers=1)  # one worker: episodes finish in the order they started
+    started = [o.index for o in stream_episodes(episode_fns.square, specs, one, progress=False,
+                                                cost=lambda spec: spec["cost"])]
+    assert started == [4, 1, 3, 2, 0]  # ties in the order given
+    outcomes = run_episodes(episode_fns.square, specs, LOCAL2, progress=False, cost=lambda spec: spec["cost"])
+    assert [o.result["value"] for o in outcomes] == [x * x for x in range(5)]
+    assert [o.index for o in stream_episodes(episode_fns.square, specs, one, progress=False)] == list(range(5))
+
+
 def test_a_failed_episode_is_tried_once_more(tmp_path):
     specs = [{"x": x, "marker": str(tmp_path / f"m{x}")} for x in range(3)]
     outcomes = run_episodes(episode_fns.fails_first_time, specs, LOCAL2, progress=False)
