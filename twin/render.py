@@ -330,7 +330,8 @@ class StereoRenderer:
         backdrop = self.scene.backdrop
         background = look.background_rgb if backdrop is None else backdrop.surface.rgb
         ambient, lights = self._lights()
-        self._scene = _ordered_scene_class(pyrender)(bg_color=np.append(np.asarray(background)[::-1], 1.0), ambient_light=ambient)
+        self._scene = _ordered_scene_class(pyrender)(bg_color=np.append(np.asarray(background)[::-1], 1.0),
+                                                     ambient_light=ambient)
         self._camera_nodes = {}
         for side in _SIDES:
             K = self._eyes[side].K_canvas
