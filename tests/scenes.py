@@ -178,9 +178,14 @@ class Scene:
 
 
 def render_scene(calib: StereoCalibration, points: np.ndarray, plate_s=(), radius: float = 0.025,
-                 noise_std: float = 2.0, seed: int = 0, lab: Lab | None = None) -> Scene:
+                 noise_std: float = 2.0, seed: int = 0, lab: Lab | None = None, sides: int = 20) -> Scene:
     """Render a tube along ``points`` (left camera frame) into both raw images; with ``lab``, in
-    that lab scene (its own noise) instead of before the uniform backdrop."""
+    that lab scene (its own noise) instead of before the uniform backdrop.
+
+    The tube is a prism of ``sides`` faces: seen across, a 20-sided one is on average 0.6 % narrower
+    than its radius says (between cos(pi / 20) and 1 of it, by how its faces turn to the eye), which
+    the estimator's width cue reads as depth (0.2-1.5 mm further at 0.92 m, measured on a straight tube).
+    Tests of depth to a fraction of a millimetre render a rounder tube."""
     if lab is not None:
         return compose_lab(calib, points, tube_layers(calib, points, plate_s, radius), lab, seed)
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
@@ -188,7 +193,7 @@ def render_scene(calib: StereoCalibration, points: np.ndarray, plate_s=(), radiu
     count = max(int(s[-1] / 0.006), 20)
     dense = np.column_stack([np.interp(np.linspace(0, s[-1], count), s, points[:, k]) for k in range(3)])
     dense_s = np.linspace(0, s[-1], count)
-    quads, colours = _tube_facets(dense, radius, plate_s, dense_s)
+    quads, colours = _tube_facets(dense, radius, plate_s, dense_s, sides=sides)
     rng = np.random.default_rng(seed)
     images = []
     for side in ("left", "right"):
