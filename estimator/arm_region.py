@@ -28,6 +28,10 @@ MIN_ASPECT = 2.5  # a tube is at least this many widths long (a folded arm still
 MIN_CONSISTENCY = 0.55  # share of the medial axis whose half width is near the typical one
 WIDTH_AT_DEPTH = (0.6, 1.7)  # measured width / the configured tube's width at the measured depth
 GAP_WIDTHS = 3.0  # pieces of one tube are at most this many widths apart (baseplates, occluders)
+# ... and the far piece lies at most this many widths across the heading: a tube comes out of a gap
+# where it was heading (over baseplates, 0.5 widths; bent sharply at one, about one), while from the
+# tip to a distractor beside it the walk jumped 1.8-2.3 widths sideways and went on along it.
+SIDEWAYS_WIDTHS = 1.0
 
 
 def corridor(shape: tuple[int, int], curve_px: np.ndarray, half_width_px: float) -> np.ndarray:
@@ -128,7 +132,7 @@ def _trace(points: np.ndarray, adjacency: list[list[int]], branches: list[list[i
     half = half_of(branches[start[0]])
     # A branch about the tube's width may continue it, and a tube does not turn back on itself at a junction.
     path = least_bending_walk(points, adjacency, branches, start, span=max(4, int(2 * half)),
-                              gap_px=GAP_WIDTHS * 2.0 * half,
+                              gap_px=GAP_WIDTHS * 2.0 * half, sideways_px=SIDEWAYS_WIDTHS * 2.0 * half,
                               keep=lambda c: 0.5 <= half_of(c) / max(half, 1e-9) <= 2.0, turn_back=False)
     ids = np.array(path)
     values = distance[points[ids, 1].astype(int), points[ids, 0].astype(int)]

@@ -141,7 +141,8 @@ def _direction(points: np.ndarray, path: list[int], at_end: bool, span: int = 8)
 
 def least_bending_walk(points: np.ndarray, adjacency: list[list[int]], branches: list[list[int]],
                        start: tuple[int, bool], *, span: int, gap_px: float,
-                       keep: Callable[[list[int]], bool] | None = None, turn_back: bool = True) -> list[int]:
+                       keep: Callable[[list[int]], bool] | None = None, turn_back: bool = True,
+                       sideways_px: float | None = None) -> list[int]:
     """Indices into ``points`` of a walk over skeleton branches from one branch's end (``start``:
     the branch and whether it is walked from its first point): at each junction, or across a gap of
     at most ``gap_px`` from a free end, it continues along the branch that bends least from the
@@ -150,6 +151,8 @@ def least_bending_walk(points: np.ndarray, adjacency: list[list[int]], branches:
     Args:
         keep: a candidate branch (in walking order) may be taken only where this holds.
         turn_back: whether the walk may leave a junction at more than 90 degrees from its heading.
+        sideways_px: a gap is jumped only where its far side lies at most this far across the
+            heading (None: no limit).
     """
     bi, first = start
     used = {bi}
@@ -175,6 +178,10 @@ def least_bending_walk(points: np.ndarray, adjacency: list[list[int]], branches:
                     step = (points[c[0]] - back) / max(float(np.linalg.norm(points[c[0]] - back)), 1e-9)
                     if step @ heading < 0.5:
                         continue
+                    if sideways_px is not None:
+                        jump = points[c[0]] - points[tail]
+                        if abs(float(heading[0] * jump[1] - heading[1] * jump[0])) > sideways_px:
+                            continue
                     out = (out + step) / 2
                 if not turn_back and out @ heading < 0.0:
                     continue

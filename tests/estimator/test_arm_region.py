@@ -113,6 +113,35 @@ def test_a_distractor_touching_the_tip_is_cut_off():
         assert np.count_nonzero(kept & box_only) <= 0.05 * np.count_nonzero(box_only), side
 
 
+def _with_piece(offset_along: float, offset_across: float) -> dict[str, np.ndarray]:
+    """The arm and a 22 px piece of its width and depth beyond its tip, ``offset_along`` px ahead of
+    the tip along its heading and ``offset_across`` px across it."""
+    tip = ARM_PATH[-1]
+    heading = (ARM_PATH[-1] - ARM_PATH[-2]) / np.linalg.norm(ARM_PATH[-1] - ARM_PATH[-2])
+    across = np.array([heading[1], -heading[0]])
+    start = tip + offset_along * heading + offset_across * across
+    piece = np.array([start, start + 22.0 * heading])
+    out = {}
+    for side, shift in (("left", 0), ("right", DISPARITY)):
+        m = draw("arm", shift)
+        cv2.polylines(m, [np.round(piece - [shift, 0]).astype(np.int32)], False, 255, thickness=9)
+        out[side] = m
+    return out
+
+
+def test_a_gap_is_jumped_straight_on_and_not_to_a_piece_beside_the_tip():
+    """A tube comes out of a gap (a baseplate, an occluder) where it was heading; a piece of the arm's
+    colour two widths to the side past the tip (the walk used to jump there and go on along a shelf
+    or a rod) is not the arm."""
+    ahead, _ = find_tube(_with_piece(16.0, 0.0), GEOMETRY, MIN_AREA)
+    beside, _ = find_tube(_with_piece(14.0, 18.0), GEOMETRY, MIN_AREA)
+    for side in ("left", "right"):
+        arm = only("arm", side)
+        assert np.count_nonzero((ahead[side] > 0) & ~arm) > 100, side  # the piece straight ahead is kept
+        assert np.count_nonzero((beside[side] > 0) & (arm)) >= 0.95 * np.count_nonzero(arm), side
+        assert np.count_nonzero((beside[side] > 0) & ~cv2.dilate(arm.astype(np.uint8), np.ones((3, 3)))) == 0, side
+
+
 def test_a_flipped_pair_is_behind_the_camera():
     keep, why = find_tube(masks(("arm", "blob"), flip=True), GEOMETRY, MIN_AREA)
     assert keep is None
