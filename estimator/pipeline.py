@@ -766,6 +766,7 @@ class CenterlineEstimator:
 
 _SECOND_THREAD = True  # see use_second_thread
 _WORKER: ThreadPoolExecutor | None = None
+_WORKER_LOCK = threading.Lock()
 
 
 def use_second_thread(enabled: bool) -> None:
@@ -778,7 +779,6 @@ def use_second_thread(enabled: bool) -> None:
     """
     global _SECOND_THREAD
     _SECOND_THREAD = bool(enabled)
-_WORKER_LOCK = threading.Lock()
 
 
 def _worker() -> ThreadPoolExecutor:
