@@ -85,6 +85,27 @@ def test_reset_forgets_the_previous_frame(bending_sequence):
     np.testing.assert_array_equal(est.estimate(frame.left, frame.right).points, fresh.points)
 
 
+@pytest.mark.parametrize("mode", ["default", "paper"])
+def test_one_thread_or_two_give_the_same_estimates(bending_sequence, mode):
+    """A study's worker processes both images on its one thread (estimator.use_second_thread(False))."""
+    import estimator
+
+    def run():
+        est = CenterlineEstimator(bending_sequence[0].calibration, EstimatorConfig(mode=mode))
+        return [est.estimate(f.left, f.right) for f in bending_sequence[:12]]
+
+    two = run()
+    estimator.use_second_thread(False)
+    try:
+        one = run()
+    finally:
+        estimator.use_second_thread(True)
+    for a, b in zip(two, one, strict=True):
+        assert (a.valid, a.reason, a.flags) == (b.valid, b.reason, b.flags)
+        np.testing.assert_array_equal(a.points, b.points)
+        np.testing.assert_array_equal(a.left_uv, b.left_uv)
+
+
 def test_folded_arm_is_reported_invalid_not_silently_wrong():
     """Default mode. (The paper mode reports every frame, as the paper does, and none of its
     plausibility checks sees this fold: the tip's silhouette merges with the arm's.)"""
