@@ -352,11 +352,14 @@ class StereoRenderer:
         self._arm_vertices: list[np.ndarray] = []
         self._prop_vertices: list[np.ndarray] = []
         world, static, moving = scene_parts(self.scene)
+        static_parts = []  # (node, its vertices in the world)
         for part in world:
-            self._scene.add(self._part_mesh(part), name="backdrop")
+            static_parts.append((self._scene.add(self._part_mesh(part), name="backdrop"), part.positions))
         for obj, parts in static:
+            T = obj.T_world(0.0)
             for part in parts:
-                self._scene.add(self._part_mesh(part), pose=obj.T_world(0.0), name=obj.name)
+                node = self._scene.add(self._part_mesh(part), pose=T, name=obj.name)
+                static_parts.append((node, part.positions.astype(np.float64) @ T[:3, :3].T + T[:3, 3]))
         self._moving: list[tuple[SceneObject, list, list[np.ndarray]]] = []
         for obj, parts in moving:
             nodes = [self._scene.add(self._part_mesh(part), pose=obj.T_world(0.0), name=obj.name) for part in parts]
@@ -375,6 +378,9 @@ class StereoRenderer:
         else:  # pyrender's PBR shader: its Lambert term is radiance * 0.96 * cos / pi
             for light in self._lights_gl:
                 light.intensity = light.intensity * math.pi / (1.0 - _DIELECTRIC_F0)
+        # Where each static object shows on each eye's canvas: a drawn rectangle skips those outside it.
+        self._static_rects = {side: [(node, self._drawn_rect(side, [np.asarray(vertices, np.float64)]))
+                                     for node, vertices in static_parts] for side in _SIDES}
         self._fast_readback = fast_readback and all(
             hasattr(self._renderer._renderer, a) for a in ("_main_fb", "_main_fb_ms", "_read_main_framebuffer"))
         if self._fast_readback:
@@ -627,7 +633,17 @@ class StereoRenderer:
         self._renderer._platform.make_current()
         GL.glEnable(GL.GL_SCISSOR_TEST)
         GL.glScissor(*rect)
-        return self._renderer.render(self._scene)
+        # A static object wholly outside the rectangle draws no pixel of it: leaving it out saves its
+        # draw call and its vertices (half the objects of a lab scene around the arm), same pixels.
+        hidden = [node for node, box in self._static_rects[side]
+                  if node.mesh.is_visible and not _overlap(box, rect)]
+        for node in hidden:
+            node.mesh.is_visible = False
+        try:
+            return self._renderer.render(self._scene)
+        finally:
+            for node in hidden:
+                node.mesh.is_visible = True
 
     def _restore(self, side: str) -> None:
         """Put the static scene back where the last frame drew."""
@@ -873,6 +889,11 @@ def _from_linear(linear: np.ndarray) -> np.ndarray:
     display 1..4 are closer together in linear light than a 12-bit step)."""
     display = cv2.pow(np.ascontiguousarray(linear, np.float32), 1.0 / _GAMMA)
     return np.clip(display * 255.0 + 0.5, 0, 255).astype(np.uint8)
+
+
+def _overlap(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> bool:
+    """Whether two (x, y, w, h) rectangles share a pixel."""
+    return a[0] < b[0] + b[2] and b[0] < a[0] + a[2] and a[1] < b[1] + b[3] and b[1] < a[1] + a[3]
 
 
 def _merged_rects(rects: list[tuple[int, int, int, int]]) -> list[tuple[int, int, int, int]]:
