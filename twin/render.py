@@ -118,6 +118,7 @@ def _matte_program_cache(pyrender):
 
     return MatteShaderCache()
 
+
 @functools.cache
 def _ordered_scene_class(pyrender):
     """pyrender's scene, numbering its nodes in the order they are added and handing out its lights
