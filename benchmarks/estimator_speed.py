@@ -4,9 +4,12 @@ SOM, measured side by side in one run.
 
 Frames come from the digital twin along the paper's ramp (s1_a, s2_a, s3 from 0 to 2.5 bar), so
 the arm takes the shapes of the experiment; the lab column renders the same ramp in the ``lab``
-scene preset (brick wall, wood, skin, cables, two lights). Each configuration runs its whole
-sequence with warm start, interleaved frame by frame so machine load affects all of them alike;
-medians are quoted.
+scene preset (brick wall, wood, skin, cables, two lights). Those frames are 58 s / ``--frames``
+apart, so the arm moves far between them (a hard case for the warm start: its second tube-fit
+start and its cold searches run often). The "lab scene, 30 fps stream" column is what a live
+camera hands over: frames 1/30 s apart from t = 29 s of the ramp on. Each configuration runs its
+whole sequence with warm start, interleaved frame by frame so machine load affects all of them
+alike; medians are quoted.
 
     python benchmarks/estimator_speed.py [--frames 30] [--repeats 3]
 """
@@ -25,26 +28,43 @@ import numpy as np
 from estimator import CenterlineEstimator, EstimatorConfig
 from estimator.som import linear_init, som_online
 
-# column -> (scene preset, estimator configuration)
+RAMP_S = 58.0
+STREAM = (29.0, 1.0 / 30.0)  # a live stream: from this time of the ramp, frames this far apart
+# column -> (scene preset, frame spacing: None along the whole ramp, else STREAM, estimator configuration)
 CONFIGS = {
-    "default": ("clean", EstimatorConfig()),
-    "default, lab scene": ("lab", EstimatorConfig()),
-    "paper (compiled SOM)": ("clean", EstimatorConfig(mode="paper")),
-    "paper (numpy SOM)": ("clean", EstimatorConfig(mode="paper", som_compiled=False)),
+    "default": ("clean", None, EstimatorConfig()),
+    "default, lab scene": ("lab", None, EstimatorConfig()),
+    "lab scene, 30 fps stream": ("lab", STREAM, EstimatorConfig()),
+    "paper (compiled SOM)": ("clean", None, EstimatorConfig(mode="paper")),
+    "paper (numpy SOM)": ("clean", None, EstimatorConfig(mode="paper", som_compiled=False)),
 }
 
 
-def twin_frames(count: int, preset: str):
+def twin_frames(count: int, preset: str, stream: tuple[float, float] | None = None):
     import dataclasses
 
     from twin import Twin
     from twin.twin import DEFAULT_CONFIG, TwinConfig
 
     twin = Twin(dataclasses.replace(TwinConfig.load(DEFAULT_CONFIG), scene_preset=preset))
-    frames = []
-    for pressure in np.linspace(0.0, 2.5, count):
+
+    def ramp_to(t_s: float) -> None:
+        pressure = 2.5 * min(t_s / RAMP_S, 1.0)
         twin.valves.set_pressures({"s1_a": pressure, "s2_a": pressure, "s3": pressure})
-        twin.advance(58.0 / count)
+
+    frames = []
+    if stream is not None:
+        start_s, interval_s = stream
+        for t_s in np.arange(0.5, start_s, 0.5):  # the ramp up to the stream's start
+            ramp_to(t_s)
+            twin.advance(0.5)
+    for i in range(count):
+        if stream is None:
+            ramp_to(RAMP_S * i / max(count - 1, 1))
+            twin.advance(RAMP_S / count)
+        else:
+            ramp_to(stream[0] + i * stream[1])
+            twin.advance(stream[1])
         frame = twin.camera.grab()
         frames.append((frame.left, frame.right))
     calibration = twin.camera.calibration
@@ -59,11 +79,11 @@ def main() -> None:
     args = parser.parse_args()
 
     scenes = {}
-    for preset in dict.fromkeys(preset for preset, _ in CONFIGS.values()):
-        scenes[preset] = twin_frames(args.frames, preset)
+    for key in dict.fromkeys((preset, stream) for preset, stream, _ in CONFIGS.values()):
+        scenes[key] = twin_frames(args.frames, *key)
     calibration = next(iter(scenes.values()))[0]
-    estimators = {name: CenterlineEstimator(calibration, cfg) for name, (_, cfg) in CONFIGS.items()}
-    frames_of = {name: scenes[preset][1] for name, (preset, _) in CONFIGS.items()}
+    estimators = {name: CenterlineEstimator(calibration, cfg) for name, (_, _, cfg) in CONFIGS.items()}
+    frames_of = {name: scenes[preset, stream][1] for name, (preset, stream, _) in CONFIGS.items()}
     for name, est in estimators.items():  # compile and warm caches outside the timing
         est.estimate(*frames_of[name][0])
         est.reset()
@@ -87,13 +107,13 @@ def main() -> None:
              "tube", "output", "total"]
     print(f"Estimator speed, {args.frames} twin frames (1280x720 stereo pairs) x {args.repeats}, medians in ms")
     print("(stage times add both images, which run in parallel; 'total' is wall time per pair)\n")
-    print(f"{'stage':<12}" + "".join(f"{name:>24}" for name in estimators))
+    print(f"{'stage':<12}" + "".join(f"{name:>26}" for name in estimators))
     for stage in order:
         row = [statistics.median(stages[name].get(stage, [0.0])) for name in estimators]
-        print(f"{stage:<12}" + "".join(f"{v:>24.2f}" for v in row))
+        print(f"{stage:<12}" + "".join(f"{v:>26.2f}" for v in row))
     totals = {name: statistics.median(stages[name]["total"]) for name in estimators}
-    print(f"{'fps (warm)':<12}" + "".join(f"{1000.0 / totals[name]:>24.1f}" for name in estimators))
-    print(f"{'cold total':<12}" + "".join(f"{statistics.median(cold[name]):>24.2f}" for name in estimators))
+    print(f"{'fps (warm)':<12}" + "".join(f"{1000.0 / totals[name]:>26.1f}" for name in estimators))
+    print(f"{'cold total':<12}" + "".join(f"{statistics.median(cold[name]):>26.2f}" for name in estimators))
     base = totals["default"]
     print("\nRatios of wall time per pair (same run):")
     for name in estimators:
