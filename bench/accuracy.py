@@ -30,6 +30,7 @@ from estimator.metrics import closest_points_on_polyline
 VARIANTS = {"tube fit": {"tube_fit": True}, "disparity profile": {"tube_fit": False}}
 ARC_BINS = np.linspace(0.0, 1.0, 11)
 ANGLE_BINS = np.array([0.0, 10.0, 20.0, 30.0, 45.0, 60.0, 75.0, 90.01])
+MAX_FRAMES = 100_000  # frames per estimator variant; beyond it, a typo
 
 
 def point_errors(frames: Sequence, calibration: StereoCalibration, base: EstimatorConfig) -> list[dict]:
@@ -170,20 +171,16 @@ def accuracy_command(args) -> int:
     from bench.engines import EngineError, engine_from_args, run_episodes, workers_used
     from bench.episodes import sequence_episode, sequence_spec
     from bench.frame_record import FrameRecord
-    from bench.study_files import finish_study, out_folder, write_results, write_study
+    from bench.study_files import finish_study, frames_from_args, out_folder, write_results, write_study
     from twin.twin import TwinConfig
 
     try:
         config = load_bench_config(getattr(args, "config", None))
         engine = engine_from_args(args)
         twin = TwinConfig.load(config.sim.twin)
+        frames = frames_from_args(args, config.experiment.frames, MAX_FRAMES)
     except (ConfigError, ValueError) as e:
         print(f"softarm study accuracy: {e}", file=sys.stderr)
-        return 2
-    frames = getattr(args, "frames", None)
-    frames = config.experiment.frames if frames is None else frames
-    if not 1 <= frames <= 100_000:
-        print(f"softarm study accuracy: --frames {frames}: expected 1 to 100000", file=sys.stderr)
         return 2
     out = out_folder(args, config, "accuracy")
     base = config.estimator_config(mode="default")

@@ -32,7 +32,7 @@ from bench.engines import EngineConfig, EngineError, engine_from_args, run_episo
 from bench.episodes import SequenceSpec, expected_cost, sequence_episode, sequence_spec, twin_config
 from bench.frame_record import FrameRecord
 from bench.scoring import pooled_rmse
-from bench.study_files import finish_study, out_folder, write_results, write_study
+from bench.study_files import finish_study, frames_from_args, out_folder, write_results, write_study
 
 CONDITIONS = ("clean", "lab", "dim", "bright_warm", "blur", "occluded", "random")
 DEFAULT_FRAMES = 60
@@ -325,14 +325,9 @@ def robustness_command(args) -> int:
         engine = engine_from_args(args)
         twin_seed = twin_config(sequence_spec(config, frames=1, preset="clean", scene_seed=0, estimators={})).scene_seed
         conditions = [parse_condition(c, twin_seed) for c in (getattr(args, "conditions", None) or CONDITIONS)]
+        frames = frames_from_args(args, DEFAULT_FRAMES, MAX_FRAMES, "frames per condition")
     except (ConfigError, ValueError) as e:
         print(f"softarm study robustness: {e}", file=sys.stderr)
-        return 2
-    frames = getattr(args, "frames", None)
-    frames = DEFAULT_FRAMES if frames is None else frames
-    if not 1 <= frames <= MAX_FRAMES:
-        print(f"softarm study robustness: --frames {frames}: expected 1 to {MAX_FRAMES} frames per condition "
-              f"(default {DEFAULT_FRAMES})", file=sys.stderr)
         return 2
     out = out_folder(args, config, "robustness")
     print(f"softarm study robustness: {len(conditions)} conditions x {frames} frames on the {engine.name} engine ...",

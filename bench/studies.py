@@ -49,7 +49,7 @@ from bench.episodes import sequence_episode, sequence_spec
 from bench.frame_record import FrameRecord
 from bench.process import Capture, process
 from bench.recording import write_json
-from bench.study_files import finish_study, out_folder, write_results, write_study
+from bench.study_files import finish_study, frames_from_args, out_folder, write_results, write_study
 from estimator import CalibrationFileError, CenterlineEstimator, EstimatorConfig, StereoCalibration
 from estimator.centerline import centerline_nodes
 from estimator.config import CENTERLINES
@@ -116,14 +116,9 @@ def study_command(args) -> int:
     try:
         config = load_bench_config(getattr(args, "config", None))
         engine = engine_from_args(args)
+        n = frames_from_args(args, DEFAULT_FRAMES, MAX_STUDY_FRAMES)
     except (ConfigError, ValueError) as e:
         print(f"softarm study: {e}", file=sys.stderr)
-        return 2
-    n = getattr(args, "frames", None)
-    n = DEFAULT_FRAMES if n is None else n
-    if not 1 <= n <= MAX_STUDY_FRAMES:
-        print(f"softarm study: --frames {n}: expected 1 to {MAX_STUDY_FRAMES} frames (default {DEFAULT_FRAMES})",
-              file=sys.stderr)
         return 2
     out = out_folder(args, config, which)
     progress = not getattr(args, "no_progress", False)

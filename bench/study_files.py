@@ -30,6 +30,19 @@ TIMING_COLUMNS = frozenset({"fps", "ms_2d", "ms_per_frame", "episode_s"})
 DECIMALS = 4  # values are written to 0.1 um when in mm, 1e-4 of a fraction
 
 
+def frames_from_args(args, default: int, maximum: int, unit: str = "frames") -> int:
+    """``--frames``, or ``default`` when it is not given.
+
+    Raises:
+        ValueError: outside 1 .. ``maximum`` (the message names the flag, the range and the default).
+    """
+    frames = getattr(args, "frames", None)
+    frames = default if frames is None else frames
+    if not 1 <= frames <= maximum:
+        raise ValueError(f"--frames {frames}: expected 1 to {maximum} {unit} (default {default})")
+    return frames
+
+
 def out_folder(args, config, which: str) -> Path:
     """``--out``, or a fresh ``study_<which>_<timestamp>`` under the config's runs folder."""
     import time

@@ -73,6 +73,16 @@ def _levels(ts, prof, total, centre, sign, gap):
 
 
 @numba.njit(cache=True, nogil=True)
+def _contrasting_levels(ts, prof, total, centre, sign, gap):
+    """``_levels``, and the squared contrast between them; (inside, outside, contrast squared, ok),
+    not ok where a side has no samples or the contrast is below ``MIN_CONTRAST`` (no edge)."""
+    inside, outside, ok = _levels(ts, prof, total, centre, sign, gap)
+    diff = inside - outside
+    norm2 = diff[0] * diff[0] + diff[1] * diff[1] + diff[2] * diff[2]
+    return inside, outside, norm2, ok and norm2 >= MIN_CONTRAST * MIN_CONTRAST
+
+
+@numba.njit(cache=True, nogil=True)
 def _crossing(ts, prof, total, inside, outside, level, centre, reach):
     """Where the profile, normalised to 1 inside and 0 outside, crosses ``level`` nearest ``centre``
     (within ``reach``); NaN if it does not."""
@@ -167,12 +177,8 @@ def _edges(image, points, normals, half, ok):
             sign = -1.0 if side == 0 else 1.0
             guess = sign * half[i]
             # Pass 1: levels just beyond the search window around the mask's edge.
-            inside, outside, ok_levels = _levels(ts, prof, total, guess, sign, SEARCH_PX)
+            inside, outside, norm2, ok_levels = _contrasting_levels(ts, prof, total, guess, sign, SEARCH_PX)
             if not ok_levels:
-                continue
-            diff = inside - outside
-            norm2 = diff[0] * diff[0] + diff[1] * diff[1] + diff[2] * diff[2]
-            if norm2 < MIN_CONTRAST * MIN_CONTRAST:
                 continue
             edge = _crossing(ts, prof, total, inside, outside, 0.5, guess, SEARCH_PX)
             if edge != edge:
@@ -189,12 +195,8 @@ def _edges(image, points, normals, half, ok):
                     break
                 rise = abs(a - b)
                 gap = min(max(0.8 * abs(a - b) + 1.0, 2.0), SEARCH_PX + MAX_BLUR_PX - LEVEL_PX)
-                inside2, outside2, ok2 = _levels(ts, prof, total, edge, sign, gap)
+                inside2, outside2, n2, ok2 = _contrasting_levels(ts, prof, total, edge, sign, gap)
                 if not ok2:
-                    break
-                diff2 = inside2 - outside2
-                n2 = diff2[0] * diff2[0] + diff2[1] * diff2[1] + diff2[2] * diff2[2]
-                if n2 < MIN_CONTRAST * MIN_CONTRAST:
                     break
                 inside, outside, norm2 = inside2, outside2, n2
                 moved = _crossing(ts, prof, total, inside, outside, 0.5, edge, gap)
