@@ -16,6 +16,8 @@ differ (a background of the arm's colour, an occluder's shadow) no edge is repor
 
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
 
@@ -39,16 +41,29 @@ def _ycc(image, x, y, out):
     y0 = min(int(y), h - 2)
     fx = x - x0
     fy = y - y0
-    bgr = np.zeros(3)
-    for c in range(3):
-        top = image[y0, x0, c] * (1.0 - fx) + image[y0, x0 + 1, c] * fx
-        bottom = image[y0 + 1, x0, c] * (1.0 - fx) + image[y0 + 1, x0 + 1, c] * fx
-        bgr[c] = top * (1.0 - fy) + bottom * fy
-    b, g, r = bgr[0], bgr[1], bgr[2]
+    w00 = (1.0 - fx) * (1.0 - fy)
+    w01 = fx * (1.0 - fy)
+    w10 = (1.0 - fx) * fy
+    w11 = fx * fy
+    b = (image[y0, x0, 0] * w00 + image[y0, x0 + 1, 0] * w01 + image[y0 + 1, x0, 0] * w10
+         + image[y0 + 1, x0 + 1, 0] * w11)
+    g = (image[y0, x0, 1] * w00 + image[y0, x0 + 1, 1] * w01 + image[y0 + 1, x0, 1] * w10
+         + image[y0 + 1, x0 + 1, 1] * w11)
+    r = (image[y0, x0, 2] * w00 + image[y0, x0 + 1, 2] * w01 + image[y0 + 1, x0, 2] * w10
+         + image[y0 + 1, x0 + 1, 2] * w11)
     out[0] = 0.299 * r + 0.587 * g + 0.114 * b
     out[1] = (-0.168736 * r - 0.331264 * g + 0.5 * b) * CHROMA_WEIGHT
     out[2] = (0.5 * r - 0.418688 * g - 0.081312 * b) * CHROMA_WEIGHT
     return True
+
+
+@numba.njit(cache=True, nogil=True)
+def _span(ts, total, lo, hi):
+    """The sample indices [first, last] that cover the stretch [lo, hi] of the profile, with one
+    sample to spare on each side (the profile is sampled every ``STEP_PX`` from ts[0])."""
+    first = max(int(math.floor((lo - ts[0]) / STEP_PX)) - 1, 0)
+    last = min(int(math.ceil((hi - ts[0]) / STEP_PX)) + 1, total - 1)
+    return first, last
 
 
 @numba.njit(cache=True, nogil=True)
@@ -59,7 +74,8 @@ def _levels(ts, prof, total, centre, sign, gap):
     outside = np.zeros(3)
     ni = 0
     no = 0
-    for k in range(total):
+    first, last = _span(ts, total, centre - gap - LEVEL_PX, centre + gap + LEVEL_PX)
+    for k in range(first, last + 1):
         d = (ts[k] - centre) * sign  # > 0 outside
         if -gap - LEVEL_PX <= d <= -gap:
             inside += prof[k]
@@ -92,11 +108,12 @@ def _crossing(ts, prof, total, inside, outside, level, centre, reach):
     found = np.nan
     prev_p = 0.0
     prev_t = 0.0
-    for k in range(total):
+    first, last = _span(ts, total, centre - reach, centre + reach)
+    for k in range(first, last + 1):
         p = ((prof[k, 0] - outside[0]) * diff[0] + (prof[k, 1] - outside[1]) * diff[1]
              + (prof[k, 2] - outside[2]) * diff[2]) / norm2
         t = ts[k]
-        if k > 0 and (prev_p - level) * (p - level) <= 0.0 and prev_p != p:
+        if k > first and (prev_p - level) * (p - level) <= 0.0 and prev_p != p:
             tc = prev_t + (level - prev_p) * (t - prev_t) / (p - prev_p)
             if abs(tc - centre) <= reach and abs(tc - centre) < best:
                 best = abs(tc - centre)
@@ -120,12 +137,13 @@ def _area_edge(ts, prof, total, inside, outside, edge, sign, half_window):
     area = 0.0
     prev_p = 0.0
     prev_t = 0.0
-    for k in range(total):
+    first, last = _span(ts, total, lo, hi)
+    for k in range(first, last + 1):
         t = ts[k]
         p = ((prof[k, 0] - outside[0]) * diff[0] + (prof[k, 1] - outside[1]) * diff[1]
              + (prof[k, 2] - outside[2]) * diff[2]) / norm2
         p = min(max(p, 0.0), 1.0)
-        if k > 0 and t > lo and prev_t < hi:
+        if k > first and t > lo and prev_t < hi:
             # the part of the segment [prev_t, t] inside [lo, hi], with p interpolated at its ends
             a = max(prev_t, lo)
             b = min(t, hi)

@@ -18,7 +18,19 @@ import pytest
 from estimator import CenterlineEstimator
 from estimator.bspline import basis
 from estimator.metrics import closest_points_on_polyline
-from estimator.tube_fit import RADIUS_BINS, RADIUS_FLOOR_M, EdgeSet, _edge_residual, fit_tube, fuse_radius
+from estimator.tube_fit import (
+    CAP_SAMPLES,
+    RADIUS_BINS,
+    RADIUS_FLOOR_M,
+    SIDE_PIECE,
+    EdgeSet,
+    _cap_piece,
+    _cap_residual_piece,
+    _edge_residual,
+    _edge_residual_gradient,
+    fit_tube,
+    fuse_radius,
+)
 from tests.scenes import Section, backbone, rectified_calibration, render_scene
 
 F, B = 700.0, 0.12  # focal length (px) and baseline (m) of the ideal rectified rig
@@ -107,6 +119,47 @@ def test_edge_residual_is_the_distance_to_the_silhouette_line():
         signs = [[abs(_edge_residual(Cc, t, r, *near[k], sign)) * F < 1e-6 for sign in (1.0, -1.0)]
                  for k in range(2)]
         assert signs[0] != signs[1] and all(sum(s) == 1 for s in signs)
+
+
+def test_edge_residual_gradient_matches_central_differences():
+    """The fit's exact partials of an edge residual in C, D and r, against central differences over
+    random tubes, sides and image points (a sign or a chain-rule term wrong shows at once)."""
+    rng = np.random.default_rng(3)
+    checked = 0
+    for _ in range(300):
+        C = np.array([*rng.normal(0.0, 0.3, 2), rng.uniform(0.5, 1.5)])
+        D, r = rng.normal(0.0, 1.0, 3), rng.uniform(0.005, 0.03)
+        x, y = rng.normal(0.0, 0.3, 2)
+        sign = float(rng.choice([-1.0, 1.0]))
+        gC, gD = np.empty(3), np.empty(3)
+        res, gr = _edge_residual_gradient(C, D, r, x, y, sign, gC, gD)
+        assert res == _edge_residual(C, D, r, x, y, sign)
+        h = 1e-7
+        numeric = []
+        for which in range(7):
+            step = np.zeros(7)
+            step[which] = h
+            up = _edge_residual(C + step[:3], D + step[3:6], r + step[6], x, y, sign)
+            down = _edge_residual(C - step[:3], D - step[3:6], r - step[6], x, y, sign)
+            numeric.append((up - down) / (2.0 * h))
+        exact = np.concatenate([gC, gD, [gr]])
+        assert np.allclose(exact, numeric, rtol=1e-5, atol=1e-6 * np.max(np.abs(numeric)))
+        checked += 1
+    assert checked == 300
+
+
+def test_cap_residual_is_its_nearest_piece():
+    """The tip outline's residual is the distance to the nearest of its pieces (two silhouette lines,
+    the rim's segments), and the piece it names gives that distance again (its derivatives are that
+    piece's)."""
+    rng = np.random.default_rng(4)
+    C, D, r = np.array([0.05, 0.02, 0.9]), np.array([0.8, 0.3, -0.2]), 0.02
+    for _ in range(100):
+        x, y = C[0] / C[2] + rng.normal(0.0, 0.03), C[1] / C[2] + rng.normal(0.0, 0.03)
+        best, piece = _cap_residual_piece(C, D, r, x, y)
+        pieces = [_cap_piece(C, D, r, x, y, k) for k in (SIDE_PIECE, SIDE_PIECE - 1, *range(CAP_SAMPLES))]
+        assert best == pytest.approx(min(pieces), abs=1e-15)
+        assert _cap_piece(C, D, r, x, y, piece) == pytest.approx(best, abs=1e-15)
 
 
 def test_fit_recovers_axis_and_radius_from_a_rough_start(bent_tube):
