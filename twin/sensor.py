@@ -37,7 +37,9 @@ class CameraEffects:
         yuyv: deliver the images through YUYV 4:2:2 chroma subsampling, as the ZED over UVC.
         optics_blur_px: standard deviation of a Gaussian blur of the optics, pixels.
         exposure_s: the arm's motion is integrated over this exposure (0: instantaneous).
-        motion_subframes: renders averaged over the exposure when ``exposure_s`` > 0.
+        motion_subframes: at most this many renders averaged over the exposure when ``exposure_s`` > 0
+            (the renderer draws as many as keep the arm's steps between them under half a pixel: one,
+            at the exposure's middle, for an arm that moves under a quarter pixel).
         shake_px: length of a linear motion-blur kernel (camera shake, a fast pan), pixels.
         shake_angle_deg: direction of that kernel in the image, degrees from the rows.
     """

@@ -19,7 +19,7 @@ import pytest
 from estimator import StereoCalibration
 from tests.twin.test_render import _bare, arc, hanging
 from twin import Twin
-from twin.render import StereoRenderer
+from twin.render import StereoRenderer, interpolate_shape
 from twin.rig import StereoRig
 from twin.scene import Backdrop, LabScene, Light, Lighting, Surface, load_scene
 from twin.sensor import CameraEffects
@@ -295,6 +295,23 @@ def test_a_moving_arm_blurs_over_the_exposure_and_a_static_one_does_not(small_ri
         return float((weight * np.arange(len(weight))).sum() / weight.sum())
 
     assert centre(moving.left) - centre(still.left) == pytest.approx(-0.5 * sweep_px, abs=0.8)
+
+
+def test_an_exposure_draws_as_many_sub_frames_as_the_motion_needs(small_rig):
+    """An arm that moves under a quarter pixel over the exposure is drawn once, as it stands at the
+    exposure's middle (the blur's centroid); a fast one gets every sub-frame, at most half a pixel apart."""
+    shape = _bare(hanging())
+    effects = CameraEffects(exposure_s=0.02, motion_subframes=8)
+    depth_m = small_rig.world_to_left_camera(shape.points_world[:1])[0, 2]
+    metres_per_px = depth_m / small_rig.calibration.K("left")[0, 0]
+    slow = (_shifted(shape, -0.2 * metres_per_px), 0.96)  # 0.2 px in 40 ms: 0.1 px over the exposure
+    fast = (_shifted(shape, -0.03), 0.96)
+    with StereoRenderer(small_rig, effects=IDEAL) as sharp, StereoRenderer(small_rig, effects=effects) as blurred:
+        once = blurred._subframes(shape, 1.0, slow)
+        assert [tau for _, tau in once] == [pytest.approx(0.99)]
+        assert len(blurred._subframes(shape, 1.0, fast)) == 8
+        middle = interpolate_shape(shape, slow[0], 0.25)  # 10 ms back of a 40 ms step
+        assert np.array_equal(blurred.render(shape, t_s=1.0, previous=slow).left, sharp.render(middle, t_s=1.0).left)
 
 
 def test_sub_frame_averaging_keeps_dark_static_pixels(small_rig):
