@@ -625,9 +625,21 @@ class StereoRenderer:
             return 0, 0, 1, 1
         return x0, height - bottom, x1 - x0, bottom - top
 
-    def _render_region(self, side: str, rect, depth: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    def _group_nodes(self, groups: list[int]) -> list:
+        """The scene nodes of moving groups (as ``render`` numbers them: 0 the arm, its plates and the
+        frame's props; 1 + g moving object g)."""
+        nodes = []
+        for g in groups:
+            if g == 0:
+                nodes += [n for n in (self._tube_node, *self._plate_nodes, *self._prop_nodes) if n is not None]
+            else:
+                nodes += list(self._moving[g - 1][1])
+        return nodes
+
+    def _render_region(self, side: str, rect, depth: bool,
+                       apart: Sequence = ()) -> tuple[np.ndarray, np.ndarray | None]:
         """Draw the scene into one eye's canvas rectangle (bottom-up GL coordinates); returns its
-        colour (and raw OpenGL depth if asked)."""
+        colour (and raw OpenGL depth if asked). ``apart``: moving nodes known to lie outside it."""
         GL = self._GL
         self._scene.main_camera_node = self._camera_nodes[side]
         self._want_depth = depth
@@ -639,6 +651,7 @@ class StereoRenderer:
         # draw call and its vertices (half the objects of a lab scene around the arm), same pixels.
         hidden = [node for node, box in self._static_rects[side]
                   if node.mesh.is_visible and not _overlap(box, rect)]
+        hidden += [node for node in apart if node.mesh.is_visible]
         for node in hidden:
             node.mesh.is_visible = False
         try:
@@ -845,7 +858,8 @@ class StereoRenderer:
                                                                                    strict=True)]
                 for g, vertices in enumerate(self._moving_vertices_by_object(tau)):
                     groups[1 + g] += vertices
-            rects = {side: _merged_rects([self._drawn_rect(side, g) for g in groups if g]) for side in _SIDES}
+            group_rects = {side: [self._drawn_rect(side, g) if g else None for g in groups] for side in _SIDES}
+            rects = {side: _merged_rects([r for r in group_rects[side] if r is not None]) for side in _SIDES}
             sums: dict[tuple[str, int], np.ndarray] = {}
             for side in _SIDES:
                 self._restore(side)
@@ -855,8 +869,13 @@ class StereoRenderer:
                 last = k == len(subframes) - 1
                 for side in _SIDES:
                     for j, rect in enumerate(rects[side]):
+                        # What moves but lies wholly outside this rectangle (the arm, for a cable's strip)
+                        # draws no pixel in it: left out like the static objects.
+                        apart = [g for g, box in enumerate(group_rects[side]) if box is not None and
+                                 not _overlap(box, rect)]
                         start = time.perf_counter()
-                        colour, z = self._render_region(side, rect, depth and last and side == "left")
+                        colour, z = self._render_region(side, rect, depth and last and side == "left",
+                                                        self._group_nodes(apart))
                         gl[side] += time.perf_counter() - start
                         if accumulate:
                             linear = _TO_LINEAR[colour]
