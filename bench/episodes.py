@@ -187,16 +187,12 @@ def sequence_episode(spec: SequenceSpec) -> dict[str, Any]:
 def expected_cost(spec: SequenceSpec) -> float:
     """What an episode is expected to cost, relative to the others of a study (which start costliest
     first): its frames times the scene draws per frame. A frame draws the arm's region and one per
-    moving object, once per sub-frame of a motion-blurred exposure; the blurred and random scenes
-    (four draws) took 14-15 s an episode against 10 s (one draw) on the paper's ramp.
+    moving object (the occluded scene's cable: 62 ms a pair against 37 ms for one draw); a
+    motion-blurred exposure draws more only where the arm moves over a quarter pixel within it,
+    which it does not on the paper's slow ramp.
     """
-    from twin.rig import StereoRig
-
-    config = twin_config(spec)
-    scene = config.scene()
-    effects = scene.effects(StereoRig.load(config.camera).sensor)
-    subframes = effects.motion_subframes if effects.exposure_s > 0 and effects.motion_subframes >= 2 else 1
-    return float(spec.frames * subframes * (1 + len(scene.moving_objects)))
+    scene = twin_config(spec).scene()
+    return float(spec.frames * (1 + len(scene.moving_objects)))
 
 
 def calibration(spec: SequenceSpec):
