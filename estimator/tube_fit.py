@@ -133,37 +133,49 @@ class TubeFit:
 # --- residuals --------------------------------------------------------------------------------
 
 
-@numba.njit(cache=True, nogil=True)
-def _edge_residual(C, D, r, x, y, sign):
-    """Distance (normalised image units) from (x, y) to the silhouette line on side ``sign``.
+_NO_VECTOR = (0.0, 0.0, 0.0)
 
-    The tangent plane through the camera centre touches the tube along a generator; its normal
-    is n = sqrt(1 - rho^2) m - sign rho e, with m the normal of the plane holding the axis and
-    the centre, e the unit perpendicular from the centre's foot on the axis line to C, and
-    rho = r / (distance from the centre to the axis line).
+
+@numba.njit(cache=True, nogil=True)
+def _tangent_plane(C, D, r, sign):
+    """The plane through the camera centre that touches the tube on side ``sign``, and the steps to it.
+
+    Its normal is n = sqrt(1 - rho^2) m - sign rho e, with m the normal of the plane holding the
+    axis and the centre, e the unit perpendicular from the centre's foot on the axis line to C, and
+    rho = r / d, d the distance from the centre to the axis line.
+
+    Returns:
+        (ok, |D|, unit tangent T, |C x T|, m, C . T, d, e, rho, sqrt(1 - rho^2), n); ok False where
+        the axis is degenerate or the centre lies within the tube.
     """
     tn = math.sqrt(D[0] * D[0] + D[1] * D[1] + D[2] * D[2])
     if tn < 1e-12:
-        return np.nan
+        return False, tn, _NO_VECTOR, 0.0, _NO_VECTOR, 0.0, 0.0, _NO_VECTOR, 0.0, 0.0, _NO_VECTOR
     T0, T1, T2 = D[0] / tn, D[1] / tn, D[2] / tn
-    m0 = C[1] * T2 - C[2] * T1
-    m1 = C[2] * T0 - C[0] * T2
-    m2 = C[0] * T1 - C[1] * T0
-    mn = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
-    if mn < 1e-12:
-        return np.nan
-    m0, m1, m2 = m0 / mn, m1 / mn, m2 / mn
+    M0 = C[1] * T2 - C[2] * T1
+    M1 = C[2] * T0 - C[0] * T2
+    M2 = C[0] * T1 - C[1] * T0
+    mn = math.sqrt(M0 * M0 + M1 * M1 + M2 * M2)
     ct = C[0] * T0 + C[1] * T1 + C[2] * T2
-    e0, e1, e2 = C[0] - ct * T0, C[1] - ct * T1, C[2] - ct * T2
-    d = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
-    if d <= r or d < 1e-9:
-        return np.nan
-    e0, e1, e2 = e0 / d, e1 / d, e2 / d
+    E0, E1, E2 = C[0] - ct * T0, C[1] - ct * T1, C[2] - ct * T2
+    d = math.sqrt(E0 * E0 + E1 * E1 + E2 * E2)
+    if mn < 1e-12 or d <= r or d < 1e-9:
+        return False, tn, (T0, T1, T2), mn, _NO_VECTOR, ct, d, _NO_VECTOR, 0.0, 0.0, _NO_VECTOR
+    m0, m1, m2 = M0 / mn, M1 / mn, M2 / mn
+    e0, e1, e2 = E0 / d, E1 / d, E2 / d
     rho = r / d
     a = math.sqrt(1.0 - rho * rho)
-    n0 = a * m0 - sign * rho * e0
-    n1 = a * m1 - sign * rho * e1
-    n2 = a * m2 - sign * rho * e2
+    n = (a * m0 - sign * rho * e0, a * m1 - sign * rho * e1, a * m2 - sign * rho * e2)
+    return True, tn, (T0, T1, T2), mn, (m0, m1, m2), ct, d, (e0, e1, e2), rho, a, n
+
+
+@numba.njit(cache=True, nogil=True)
+def _edge_residual(C, D, r, x, y, sign):
+    """Distance (normalised image units) from (x, y) to the silhouette line on side ``sign``: the line
+    in which the tangent plane (``_tangent_plane``) meets the image."""
+    ok, _, _, _, _, _, _, _, _, _, (n0, n1, n2) = _tangent_plane(C, D, r, sign)
+    if not ok:
+        return np.nan
     return (n0 * x + n1 * y + n2) / math.sqrt(n0 * n0 + n1 * n1)
 
 
@@ -172,28 +184,9 @@ def _edge_residual_gradient(C, D, r, x, y, sign, gC, gD):
     """``_edge_residual`` and its exact partials: in C and D (into ``gC``, ``gD``) and in r (returned
     second), by reverse-mode differentiation of the same steps (within 1e-8 relative of central
     differences). Forward differences cost seven more evaluations per edge, most of the fit's time."""
-    tn = math.sqrt(D[0] * D[0] + D[1] * D[1] + D[2] * D[2])
-    if tn < 1e-12:
+    ok, tn, (T0, T1, T2), mn, (m0, m1, m2), ct, d, (e0, e1, e2), rho, a, (n0, n1, n2) = _tangent_plane(C, D, r, sign)
+    if not ok:
         return np.nan, np.nan
-    T0, T1, T2 = D[0] / tn, D[1] / tn, D[2] / tn
-    M0 = C[1] * T2 - C[2] * T1
-    M1 = C[2] * T0 - C[0] * T2
-    M2 = C[0] * T1 - C[1] * T0
-    mn = math.sqrt(M0 * M0 + M1 * M1 + M2 * M2)
-    if mn < 1e-12:
-        return np.nan, np.nan
-    m0, m1, m2 = M0 / mn, M1 / mn, M2 / mn
-    ct = C[0] * T0 + C[1] * T1 + C[2] * T2
-    E0, E1, E2 = C[0] - ct * T0, C[1] - ct * T1, C[2] - ct * T2
-    d = math.sqrt(E0 * E0 + E1 * E1 + E2 * E2)
-    if d <= r or d < 1e-9:
-        return np.nan, np.nan
-    e0, e1, e2 = E0 / d, E1 / d, E2 / d
-    rho = r / d
-    a = math.sqrt(1.0 - rho * rho)
-    n0 = a * m0 - sign * rho * e0
-    n1 = a * m1 - sign * rho * e1
-    n2 = a * m2 - sign * rho * e2
     den = math.sqrt(n0 * n0 + n1 * n1)
     num = n0 * x + n1 * y + n2
     res = num / den
