@@ -778,7 +778,7 @@ class StereoRenderer:
     def _motion_px(self, first: ArmShape | None, last: ArmShape | None, t0: float, t1: float) -> float:
         """The largest distance (canvas pixels, either eye) that the arm's backbone and plates or a
         moving object's points travel between two times."""
-        pairs = [(a, b) for a, b in zip(self._moving_vertices(t0), self._moving_vertices(t1), strict=True)]
+        pairs = list(zip(self._moving_vertices(t0), self._moving_vertices(t1), strict=True))
         if (first is not None and last is not None and len(first.points_world) == len(last.points_world)
                 and len(first.plates) == len(last.plates)):
             pairs.append((first.points_world, last.points_world))
