@@ -109,11 +109,14 @@ class EstimatorConfig:
             silhouette wider than this factor times that along ``max_wide_fraction`` of the arm
             holds two overlapping parts: invalid (default mode).
         compensation: misalignment compensation: "nearest" (the paper: cubic spline on the right
-            nodes; of the spline's crossings of left node j's row between nodes j - 1 and j + 1,
-            the one nearest node j along the spline's parameter; none there: the node is kept),
-            "nearest_image" (of all crossings, the one nearest right node j in the image: jumps to
-            the other branch where the arm crosses a row twice), "windowed" (as "nearest", within
-            two nodes of j), "none".
+            nodes; of the spline's crossings of left node j's row within one node's share of the
+            arm from node j's place, by arc length fraction on each image's spline, the nearest;
+            where the spline crosses that row at under 15 degrees, or not there at all, the row
+            cannot say where node j is: the node goes to the right spline's point at the arc
+            length carried from the nodes the rows pin and the tip), "nearest_image" (of all
+            crossings, the one nearest right node j in the image: jumps to the other branch where
+            the arm crosses a row twice; no crossing: the node is kept), "windowed" (as "nearest",
+            within two nodes' share), "none".
         plausibility_checks: drop frames that fail a plausibility check (a loop in the
             silhouette, a centerline touching itself, an estimate much shorter or longer than the
             arm, points behind the camera) as invalid (default mode), or keep them and only name

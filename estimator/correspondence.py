@@ -3,11 +3,13 @@
 ``compensate_nodes`` is the paper's misalignment compensation (section 4.2): a cubic spline
 through the right nodes, and for each left node the point of that spline on the left node's row.
 Where the arm crosses a row twice (a U shape) the row has several such points; the paper does
-not say which. The one nearest node j along the spline's parameter (the same place along the
-arm) is the default; the one nearest right node j in the image (``nearest="image"``) can jump to
-the other branch. ``match_rows`` is the default mode's version: only crossings near the same
-arc-length fraction count, and each match carries a weight that says how well the row pins it
-down (a curve running along the rows cannot be matched by row).
+not say which. The one nearest node j's place along the arm (arc length fractions) is the
+default; the one nearest right node j in the image (``nearest="image"``) can jump to the other
+branch. Where the arm runs along the rows the row has no reliable point at all; those nodes are
+placed by arc length from the nodes the rows do pin. ``match_rows`` is the default mode's
+version: only crossings near the same arc-length fraction count, and each match carries a
+weight that says how well the row pins it down (a curve running along the rows cannot be
+matched by row).
 """
 
 from __future__ import annotations
@@ -42,24 +44,34 @@ def row_crossings(curve: np.ndarray, row: float) -> tuple[np.ndarray, np.ndarray
 NEAREST = ("parameter", "image")
 
 
-def compensate_nodes(left_nodes: np.ndarray, right_nodes: np.ndarray, window_nodes: float | None = None,
-                     samples_per_node: int = 50, nearest: str = "parameter") -> np.ndarray:
+def compensate_nodes(left_nodes: np.ndarray, right_nodes: np.ndarray, window: float | None = None,
+                     samples_per_node: int = 50, nearest: str = "parameter",
+                     min_sine: float | None = None) -> np.ndarray:
     """The paper's compensation: move each right node onto its left node's row.
 
     A cubic spline runs through the right nodes (parameter: node index); for left node j, the
-    points of that spline on row v_L,j are candidates.
+    points of that spline on row v_L,j are candidates. Places along the arm are compared as arc
+    length fractions, each on its own image's spline: the two SOMs spread their nodes
+    differently (on the twin's ramp the right chain runs more than a node ahead of the left one
+    round a bend), so node indices do not name the same place.
 
     Args:
-        left_nodes, right_nodes: (n, 2) ordered SOM nodes in rectified pixels.
-        window_nodes: None accepts every candidate; a number only those within that many node
-            indices of j.
+        left_nodes, right_nodes: (n, 2) ordered SOM nodes in rectified pixels, base -> tip.
+        window: None accepts every candidate; a number only those within that fraction of the
+            arm's length of node j's place.
         samples_per_node: spline samples between two nodes (where the rows are crossed).
-        nearest: which candidate wins: "parameter", the one nearest node j along the spline's
-            parameter (the same place along the arm); "image", the one nearest right node j in
-            the image (can lie on the other branch where the arm crosses a row twice).
+        nearest: which candidate wins: "parameter", the one nearest node j's place along the arm;
+            "image", the one nearest right node j in the image (can lie on the other branch where
+            the arm crosses a row twice).
+        min_sine: None keeps node j where no candidate is left. A number also drops candidates
+            where the spline crosses the row at an angle to it whose sine is below ``min_sine``
+            (a crossing moves by e / sin for a row error e: along the rows the row says nothing),
+            and places every node without a candidate along the right spline instead: at the
+            arc length interpolated, in left arc length, between the nodes the rows pin down and
+            the two ends (the same ends of the arm in both images).
 
     Returns:
-        (n, 2) compensated right nodes W*_R; a node keeps its position when no candidate exists.
+        (n, 2) compensated right nodes W*_R.
     """
     if nearest not in NEAREST:
         raise ValueError(f"nearest: expected one of {NEAREST}, got {nearest!r}")
@@ -69,24 +81,60 @@ def compensate_nodes(left_nodes: np.ndarray, right_nodes: np.ndarray, window_nod
         raise ValueError(f"left_nodes, right_nodes: expected two (n, 2) arrays of the same shape, got "
                          f"{left_nodes.shape} and {right_nodes.shape}")
     n = len(right_nodes)
-    spline = CubicSpline(np.arange(n), right_nodes, axis=0)
+    knots = np.arange(n)
+    spline = CubicSpline(knots, right_nodes, axis=0)
     dense = spline(np.linspace(0, n - 1, (n - 1) * samples_per_node + 1))
+    arc_right = _arc(dense)
+    arc_left = _arc(CubicSpline(knots, left_nodes, axis=0)(np.linspace(0, n - 1, (n - 1) * samples_per_node + 1)))
+    place_left = arc_left[::samples_per_node] / max(arc_left[-1], 1e-12)  # node j's arc fraction
+    samples = np.arange(len(dense))
     out = right_nodes.copy()
+    pinned = np.full(n, np.nan)  # right arc length matched to left node j by its row
     for j in range(n):
         u, where = row_crossings(dense, left_nodes[j, 1])
-        index = where / samples_per_node
-        if window_nodes is not None:
-            near = np.abs(index - j) <= window_nodes
-            u, index = u[near], index[near]
-        if len(u) == 0:
+        place = np.interp(where, samples, arc_right) / max(arc_right[-1], 1e-12)
+        keep = np.ones(len(u), bool)
+        if window is not None:
+            keep &= np.abs(place - place_left[j]) <= window
+        if min_sine is not None and keep.any():
+            slope = spline(where / samples_per_node, 1)
+            keep &= np.abs(slope[:, 1]) >= min_sine * np.hypot(slope[:, 0], slope[:, 1])
+        if not keep.any():
             continue
+        u, where, place = u[keep], where[keep], place[keep]
         if nearest == "image":
             candidates = np.column_stack([u, np.full(len(u), left_nodes[j, 1])])
             pick = int(np.argmin(np.linalg.norm(candidates - right_nodes[j], axis=1)))
         else:
-            pick = int(np.argmin(np.abs(index - j)))
+            pick = int(np.argmin(np.abs(place - place_left[j])))
         out[j] = (u[pick], left_nodes[j, 1])
+        pinned[j] = np.interp(where[pick], samples, arc_right)
+    if min_sine is not None:
+        out = _carry_along_arc(out, left_nodes, arc_left[::samples_per_node], pinned, dense, arc_right)
     return out
+
+
+def _carry_along_arc(out: np.ndarray, left_nodes: np.ndarray, left_arc: np.ndarray, pinned: np.ndarray,
+                     dense: np.ndarray, arc_right: np.ndarray) -> np.ndarray:
+    """Nodes the rows do not pin: the right spline's point at the arc length interpolated between
+    the pinned nodes and the ends, on the left node's row."""
+    free = ~np.isfinite(pinned)
+    if not free.any():
+        return out
+    known = ~free
+    xs, ys = left_arc[known], pinned[known]
+    if not known[0]:
+        xs, ys = np.r_[0.0, xs], np.r_[0.0, ys]
+    if not known[-1]:
+        xs, ys = np.r_[xs, left_arc[-1]], np.r_[ys, arc_right[-1]]
+    target = np.interp(left_arc[free], xs, ys)
+    u = np.interp(target, arc_right, dense[:, 0])
+    out[free] = np.column_stack([u, left_nodes[free, 1]])
+    return out
+
+
+def _arc(curve: np.ndarray) -> np.ndarray:
+    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(curve, axis=0), axis=1))])
 
 
 @numba.njit(cache=True, nogil=True)
@@ -153,5 +201,5 @@ def match_rows(left: np.ndarray, right: np.ndarray, window: float = 0.08,
 
 
 def _tau(curve: np.ndarray) -> np.ndarray:
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(curve, axis=0), axis=1))])
+    arc = _arc(curve)
     return arc / max(arc[-1], 1e-12)

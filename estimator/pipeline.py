@@ -28,7 +28,7 @@ from estimator.calibration import StereoCalibration
 from estimator.centerline import centerline_nodes
 from estimator.colour_model import ArmColourModel
 from estimator.config import EstimatorConfig
-from estimator.correspondence import compensate_nodes, match_rows
+from estimator.correspondence import MIN_SINE, compensate_nodes, match_rows
 from estimator.edges import subpixel_edges, subpixel_edges_and_steps
 from estimator.mount import MountLearner
 from estimator.profile import BASE_RAMP_WIDTHS, BASE_SKIP_WIDTHS, base_ramp, measured_radius_m, with_width_cue
@@ -516,12 +516,13 @@ class CenterlineEstimator:
         cfg = self.config
         left, right = sides["left"].nodes, sides["right"].nodes
         with _timed(timings, "match"):
-            if cfg.compensation == "nearest":  # the crossing nearest j along the spline, between nodes j - 1 and j + 1
-                right = compensate_nodes(left, right, window_nodes=1.0)
+            spacing = 1.0 / (len(left) - 1)  # one node's share of the arm
+            if cfg.compensation == "nearest":  # the crossing nearest node j's place, within a node of it
+                right = compensate_nodes(left, right, window=spacing, min_sine=MIN_SINE)
             elif cfg.compensation == "nearest_image":
                 right = compensate_nodes(left, right, nearest="image")
             elif cfg.compensation == "windowed":
-                right = compensate_nodes(left, right, window_nodes=2.0)
+                right = compensate_nodes(left, right, window=2.0 * spacing, min_sine=MIN_SINE)
         with _timed(timings, "triangulate"):
             points_rect = triangulate(self._rect.P["left"], self._rect.P["right"], left, right)
             points = self._rect.to_left_camera(points_rect)

@@ -198,7 +198,8 @@ def test_compensation_nearest_along_the_spline_stays_on_its_branch():
 
 def test_windowed_compensation_needs_a_crossing_near_the_same_node():
     """On a U whose right nodes lie a little further along, the right curve crosses the first left
-    row only on the far branch: without a window both rules take it, within two nodes none is."""
+    row only on the far branch: without a window both rules take it, within two nodes' share of
+    the arm none is."""
     t = np.linspace(0, np.pi, 20)
     left = np.column_stack([500 + 100 * np.cos(t), 300 + 200 * np.sin(t)])
     t_right = t + 0.3 * (t[1] - t[0])
@@ -208,7 +209,7 @@ def test_windowed_compensation_needs_a_crossing_near_the_same_node():
     for nearest in ("parameter", "image"):
         out = compensate_nodes(left, right, nearest=nearest)
         assert np.sign(out[0, 0] - 420) != branch[0]
-    windowed = compensate_nodes(left, right, window_nodes=2)
+    windowed = compensate_nodes(left, right, window=2 / 19)  # two nodes' share of the arm
     np.testing.assert_array_equal(np.sign(windowed[clear, 0] - 420), branch[clear])
 
 
@@ -246,3 +247,49 @@ def test_robust_profile_ignores_outliers_and_bridges_gaps():
     w[120:160] = 0  # a stretch with no information
     fit = robust_spline_profile(x, y_noisy, w, x, knots=6)
     assert np.max(np.abs(fit - y)) < 0.2
+
+
+def _along(curve: np.ndarray, fractions: np.ndarray) -> np.ndarray:
+    """Points at the given arc-length fractions of a polyline."""
+    arc = np.concatenate([[0], np.cumsum(np.linalg.norm(np.diff(curve, axis=0), axis=1))])
+    return np.column_stack([np.interp(fractions * arc[-1], arc, curve[:, k]) for k in range(2)])
+
+
+def elbow() -> np.ndarray:
+    """Down a column, then a quarter circle into a stretch along the rows: the tip of a bent arm."""
+    down = np.column_stack([np.full(300, 400.0), np.linspace(100, 400, 300)])
+    a = np.linspace(np.pi, np.pi / 2, 300)
+    turn = np.column_stack([500 + 100 * np.cos(a), 400 + 100 * np.sin(a)])
+    flat = np.column_stack([np.linspace(500, 650, 300), np.full(300, 500.0)])
+    return np.vstack([down, turn[1:], flat[1:]])
+
+
+def test_compensation_compares_places_along_the_arm_not_node_numbers():
+    """The two SOMs spread their nodes differently: here the right chain runs up to 1.4 nodes ahead
+    round the bend. Node j's place is its arc fraction, so each left node still finds its own row's
+    crossing on the right curve (d = 80 px everywhere on this flat rig)."""
+    curve = elbow()
+    f = np.linspace(0, 1, 20)
+    left = _along(curve, f)
+    right = _along(curve, f + 0.075 * np.sin(np.pi * f)) - [80.0, 0.0]
+    out = compensate_nodes(left, right, window=1 / 19)
+    steep = np.abs(np.gradient(left[:, 1])) > 0.5 * np.linalg.norm(np.gradient(left, axis=0), axis=1)
+    np.testing.assert_allclose(out[steep, 0], left[steep, 0] - 80.0, atol=0.5)
+    np.testing.assert_allclose(out[:, 1], left[:, 1])
+
+
+def test_compensation_carries_rows_that_run_along_the_arm():
+    """Along the rows a crossing moves by e / sin for a row error e: the right stretch sits 0.8 px
+    low there, so its rows are never crossed or crossed far away. With ``min_sine`` those nodes take
+    the right curve's point at the arc length carried from the nodes the rows pin and the tip."""
+    curve = elbow()
+    f = np.linspace(0, 1, 20)
+    left = _along(curve, f)
+    right = _along(curve, f) - [80.0, 0.0]
+    right[:, 1] += 0.8 * (right[:, 1] > 499.5)  # the SOM's sub-pixel scatter, on the stretch along the rows
+    flat = left[:, 1] > 499.0
+    kept = compensate_nodes(left, right, window=1 / 19)
+    carried = compensate_nodes(left, right, window=1 / 19, min_sine=0.25)
+    assert np.max(np.abs(kept[flat, 0] - (left[flat, 0] - 80.0))) > 5.0
+    np.testing.assert_allclose(carried[:, 0], left[:, 0] - 80.0, atol=1.5)
+    np.testing.assert_allclose(carried[:, 1], left[:, 1])
