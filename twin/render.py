@@ -48,6 +48,8 @@ MOTION_STEP_PX = 0.5  # motion blur: the largest step between two sub-frames of 
 # undistortPoints iterates; its default 5 iterations leave ~0.1 px at the corners of a ZED.
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 60, 1e-12)
 _GAMMA = 2.2  # the fragment shader writes colour ** (1 / 2.2)
+_SAMPLES = 4  # pyrender's multisampled framebuffer: 4 samples per pixel
+_PIECE_PX = 96  # a moving object's drawn rectangles: pieces this long along its box's longer side
 _DIELECTRIC_F0 = 0.04  # pyrender's own PBR shader: diffuse colour = base * (1 - 0.04)
 
 # A matte (Lambert + ambient) fragment shader in place of pyrender's PBR one: no specular term,
@@ -363,9 +365,11 @@ class StereoRenderer:
                 node = self._scene.add(self._part_mesh(part), pose=T, name=obj.name)
                 static_parts.append((node, part.positions.astype(np.float64) @ T[:3, :3].T + T[:3, 3]))
         self._moving: list[tuple[SceneObject, list, list[np.ndarray]]] = []
+        self._moving_faces: list[list[np.ndarray]] = []
         for obj, parts in moving:
             nodes = [self._scene.add(self._part_mesh(part), pose=obj.T_world(0.0), name=obj.name) for part in parts]
             self._moving.append((obj, nodes, [part.positions.astype(np.float64) for part in parts]))
+            self._moving_faces.append([np.asarray(part.faces, np.int64) for part in parts])
         try:
             self._renderer = pyrender.OffscreenRenderer(*self._canvas_size)
         except Exception as e:  # EGL missing devices/drivers surface as many exception types
@@ -380,14 +384,14 @@ class StereoRenderer:
         else:  # pyrender's PBR shader: its Lambert term is radiance * 0.96 * cos / pi
             for light in self._lights_gl:
                 light.intensity = light.intensity * math.pi / (1.0 - _DIELECTRIC_F0)
-        # Where each static object shows on each eye's canvas: a drawn rectangle skips those outside it.
-        self._static_rects = {side: [(node, self._drawn_rect(side, [np.asarray(vertices, np.float64)]))
-                                     for node, vertices in static_parts] for side in _SIDES}
+        # A drawn rectangle starts from the static scene's samples: these are never drawn again.
+        self._static_nodes = [node for node, _ in static_parts]
         self._fast_readback = fast_readback and all(
             hasattr(self._renderer._renderer, a) for a in ("_main_fb", "_main_fb_ms", "_read_main_framebuffer"))
         if self._fast_readback:
             self._want_depth = True
-            self._rect = (0, 0, *self._canvas_size)
+            self._rects = [(0, 0, *self._canvas_size)]
+            self._static_samples: dict[str, int] = {}
             self._renderer._renderer._read_main_framebuffer = self._read_framebuffer
             self._render_static()
 
@@ -412,9 +416,10 @@ class StereoRenderer:
         self._static_canvas = {}
         for side in _SIDES:
             self._scene.main_camera_node = self._camera_nodes[side]
-            colour, zbuf = self._renderer.render(self._scene)
+            [(colour, zbuf)] = self._renderer.render(self._scene)
             self._canvas[side] = [colour.copy(), zbuf.copy(), None]  # colour, depth, the last frame's rects
             self._static_canvas[side] = (colour.copy(), zbuf.copy())
+            self._keep_static_samples(side)
         self._show_moving(True)
         self._static_raw = {}
         self._static_done = {}
@@ -580,25 +585,27 @@ class StereoRenderer:
     # --- rendering --------------------------------------------------------------------------------
 
     def _read_framebuffer(self, scene, flags):
-        """Replacement for pyrender's read-back: colour always, raw depth only when asked,
-        no flips or conversions (the remap maps absorb the bottom-up row order)."""
+        """Replacement for pyrender's read-back: each drawn rectangle's colour, and raw depth only when
+        asked, no flips or conversions (the remap maps absorb the bottom-up row order)."""
         GL = self._GL
         r = self._renderer._renderer
-        x, y, w, h = self._rect  # bottom-up GL window coordinates
-        GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, r._main_fb_ms)
-        GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, r._main_fb)
-        GL.glBlitFramebuffer(x, y, x + w, y + h, x, y, x + w, y + h, GL.GL_COLOR_BUFFER_BIT, GL.GL_LINEAR)
-        if self._want_depth:
-            GL.glBlitFramebuffer(x, y, x + w, y + h, x, y, x + w, y + h, GL.GL_DEPTH_BUFFER_BIT, GL.GL_NEAREST)
-        GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, r._main_fb)
-        GL.glPixelStorei(GL.GL_PACK_ALIGNMENT, 1)
-        colour = np.frombuffer(GL.glReadPixels(x, y, w, h, GL.GL_RGB, GL.GL_UNSIGNED_BYTE),
-                               dtype=np.uint8).reshape(h, w, 3)
-        depth = None
-        if self._want_depth:
-            depth = np.frombuffer(GL.glReadPixels(x, y, w, h, GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT),
-                                  dtype=np.float32).reshape(h, w)
-        return colour, depth
+        out = []
+        for x, y, w, h in self._rects:  # bottom-up GL window coordinates
+            GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, r._main_fb_ms)
+            GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, r._main_fb)
+            GL.glBlitFramebuffer(x, y, x + w, y + h, x, y, x + w, y + h, GL.GL_COLOR_BUFFER_BIT, GL.GL_LINEAR)
+            if self._want_depth:
+                GL.glBlitFramebuffer(x, y, x + w, y + h, x, y, x + w, y + h, GL.GL_DEPTH_BUFFER_BIT, GL.GL_NEAREST)
+            GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, r._main_fb)
+            GL.glPixelStorei(GL.GL_PACK_ALIGNMENT, 1)
+            colour = np.frombuffer(GL.glReadPixels(x, y, w, h, GL.GL_RGB, GL.GL_UNSIGNED_BYTE),
+                                   dtype=np.uint8).reshape(h, w, 3)
+            depth = None
+            if self._want_depth:
+                depth = np.frombuffer(GL.glReadPixels(x, y, w, h, GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT),
+                                      dtype=np.float32).reshape(h, w)
+            out.append((colour, depth))
+        return out
 
     def _drawn_rect(self, side: str, vertices: list[np.ndarray]) -> tuple[int, int, int, int]:
         """Bottom-up (x, y, w, h) canvas rectangle holding every given vertex.
@@ -625,40 +632,108 @@ class StereoRenderer:
             return 0, 0, 1, 1
         return x0, height - bottom, x1 - x0, bottom - top
 
-    def _group_nodes(self, groups: list[int]) -> list:
-        """The scene nodes of moving groups (as ``render`` numbers them: 0 the arm, its plates and the
-        frame's props; 1 + g moving object g)."""
-        nodes = []
-        for g in groups:
-            if g == 0:
-                nodes += [n for n in (self._tube_node, *self._plate_nodes, *self._prop_nodes) if n is not None]
-            else:
-                nodes += list(self._moving[g - 1][1])
-        return nodes
+    def _triangle_rects(self, side: str, meshes: list[tuple[np.ndarray, np.ndarray]]) -> list | None:
+        """Bottom-up (x, y, w, h) canvas rectangles that together hold every triangle of the meshes
+        ((world vertices, faces) pairs), in pieces of ``_PIECE_PX`` along the longer side of their box:
+        a cable slanting across the whole view costs its own pixels, not its bounding box. None when
+        something reaches behind the camera."""
+        width, height = self._canvas_size
+        T = self.rig.T_world_cam(side)
+        K = self._eyes[side].K_canvas
+        lows, highs = [], []
+        for vertices, faces in meshes:
+            p = (vertices - T[:3, 3]) @ T[:3, :3]
+            if np.any(p[:, 2] <= _ZNEAR_M):
+                return None
+            uv = np.column_stack([K[0, 0] * p[:, 0] / p[:, 2] + K[0, 2], K[1, 1] * p[:, 1] / p[:, 2] + K[1, 2]])
+            a, b, c = uv[faces[:, 0]], uv[faces[:, 1]], uv[faces[:, 2]]
+            lows.append(np.minimum(np.minimum(a, b), c))
+            highs.append(np.maximum(np.maximum(a, b), c))
+        if not lows:
+            return []
+        pad = 4  # anti-aliasing and rounding, as in _drawn_rect
+        size = np.array([width, height])
+        low = np.clip(np.floor(np.vstack(lows)) - pad, 0, size).astype(np.int64)
+        high = np.clip(np.ceil(np.vstack(highs)) + pad + 1, 0, size).astype(np.int64)
+        start, end = low.min(axis=0), high.max(axis=0)
+        along = 0 if end[0] - start[0] >= end[1] - start[1] else 1
+        across = 1 - along
+        # Each triangle widens the across-range of every piece its box reaches along.
+        first = (low[:, along] - start[along]) // _PIECE_PX
+        last = (high[:, along] - 1 - start[along]) // _PIECE_PX
+        count = int(last.max()) + 1
+        b0 = np.full(count, np.iinfo(np.int64).max)
+        b1 = np.full(count, np.iinfo(np.int64).min)
+        for step in range(int((last - first).max()) + 1):
+            reach = first + step <= last
+            np.minimum.at(b0, first[reach] + step, low[reach, across])
+            np.maximum.at(b1, first[reach] + step, high[reach, across])
+        rects = []
+        for k in np.flatnonzero(b1 > b0):
+            a0 = int(start[along]) + int(k) * _PIECE_PX
+            a1 = min(a0 + _PIECE_PX, int(end[along]))
+            (x0, x1), (top, bottom) = ((a0, a1), (int(b0[k]), int(b1[k]))) if along == 0 else \
+                ((int(b0[k]), int(b1[k])), (a0, a1))
+            rects.append((x0, height - bottom, x1 - x0, bottom - top))
+        return rects
 
-    def _render_region(self, side: str, rect, depth: bool,
-                       apart: Sequence = ()) -> tuple[np.ndarray, np.ndarray | None]:
-        """Draw the scene into one eye's canvas rectangle (bottom-up GL coordinates); returns its
-        colour (and raw OpenGL depth if asked). ``apart``: moving nodes known to lie outside it."""
+    def _render_regions(self, side: str, rects: list, depth: bool) -> list[tuple[np.ndarray, np.ndarray | None]]:
+        """Draw one eye's canvas rectangles (bottom-up GL coordinates) in one pass; returns each one's
+        colour (and raw OpenGL depth if asked).
+
+        Each rectangle gets the static scene's samples (colour and depth, every multisample) copied in
+        instead of a clear, and only what moves is drawn over them, with the depth test: the same
+        samples as drawing everything, at the cost of the moving things alone. Outside the rectangles
+        the canvas is left stale and is not read.
+        """
         GL = self._GL
         self._scene.main_camera_node = self._camera_nodes[side]
         self._want_depth = depth
-        self._rect = rect
+        self._rects = rects
         self._renderer._platform.make_current()
+        x0 = min(r[0] for r in rects)
+        y0 = min(r[1] for r in rects)
         GL.glEnable(GL.GL_SCISSOR_TEST)
-        GL.glScissor(*rect)
-        # A static object wholly outside the rectangle draws no pixel of it: leaving it out saves its
-        # draw call and its vertices (half the objects of a lab scene around the arm), same pixels.
-        hidden = [node for node, box in self._static_rects[side]
-                  if node.mesh.is_visible and not _overlap(box, rect)]
-        hidden += [node for node in apart if node.mesh.is_visible]
+        GL.glScissor(x0, y0, max(r[0] + r[2] for r in rects) - x0, max(r[1] + r[3] for r in rects) - y0)
+        hidden = [node for node in self._static_nodes if node.mesh.is_visible]
         for node in hidden:
             node.mesh.is_visible = False
+        renderer_module = self._pyrender.renderer
+        clear = renderer_module.glClear
+        renderer_module.glClear = functools.partial(self._restore_static_samples, side)
         try:
             return self._renderer.render(self._scene)
         finally:
+            renderer_module.glClear = clear
             for node in hidden:
                 node.mesh.is_visible = True
+
+    def _keep_static_samples(self, side: str) -> None:
+        """Copy the multisampled static scene just drawn for ``side`` into a framebuffer of its own
+        (4 samples of colour and depth: about 50 MB per eye for a 1664x941 canvas)."""
+        GL = self._GL
+        width, height = self._canvas_size
+        colour_rb, depth_rb = GL.glGenRenderbuffers(2)
+        for buffer, kind in ((colour_rb, GL.GL_RGBA), (depth_rb, GL.GL_DEPTH_COMPONENT24)):
+            GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, buffer)
+            GL.glRenderbufferStorageMultisample(GL.GL_RENDERBUFFER, _SAMPLES, kind, width, height)
+        framebuffer = GL.glGenFramebuffers(1)
+        GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, framebuffer)
+        GL.glFramebufferRenderbuffer(GL.GL_DRAW_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0, GL.GL_RENDERBUFFER, colour_rb)
+        GL.glFramebufferRenderbuffer(GL.GL_DRAW_FRAMEBUFFER, GL.GL_DEPTH_ATTACHMENT, GL.GL_RENDERBUFFER, depth_rb)
+        GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, self._renderer._renderer._main_fb_ms)
+        GL.glBlitFramebuffer(0, 0, width, height, 0, 0, width, height,
+                             GL.GL_COLOR_BUFFER_BIT | GL.GL_DEPTH_BUFFER_BIT, GL.GL_NEAREST)
+        self._static_samples[side] = framebuffer
+
+    def _restore_static_samples(self, side: str, _mask=None) -> None:
+        """pyrender's clear, replaced: the drawn rectangles get the static scene's samples back."""
+        GL = self._GL
+        GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, self._static_samples[side])
+        GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, self._renderer._renderer._main_fb_ms)
+        for x, y, w, h in self._rects:
+            GL.glBlitFramebuffer(x, y, x + w, y + h, x, y, x + w, y + h,
+                                 GL.GL_COLOR_BUFFER_BIT | GL.GL_DEPTH_BUFFER_BIT, GL.GL_NEAREST)
 
     def _restore(self, side: str) -> None:
         """Put the static scene back where the last frame drew."""
@@ -849,17 +924,21 @@ class StereoRenderer:
         if self._fast_readback:
             # One rectangle for the arm (and props), one per moving object; rectangles that overlap
             # much are merged. A cable crossing the whole view costs a thin strip, not a union box.
-            groups: list[list[np.ndarray]] = [list(self._prop_vertices)]
-            groups += [[] for _ in self._moving]
+            arm: list[np.ndarray] = list(self._prop_vertices)
+            moving: list[tuple[np.ndarray, np.ndarray]] = []  # (world vertices, faces) of every moving mesh
             for geometry, tau in subframes:
                 if geometry is not None:
-                    groups[0].append(geometry[1][0].astype(np.float64))
-                    groups[0] += [_disc_points(plate, pose) for plate, pose in zip(geometry[0].plates, geometry[2],
-                                                                                   strict=True)]
-                for g, vertices in enumerate(self._moving_vertices_by_object(tau)):
-                    groups[1 + g] += vertices
-            group_rects = {side: [self._drawn_rect(side, g) if g else None for g in groups] for side in _SIDES}
-            rects = {side: _merged_rects([r for r in group_rects[side] if r is not None]) for side in _SIDES}
+                    arm.append(geometry[1][0].astype(np.float64))
+                    arm += [_disc_points(plate, pose) for plate, pose in zip(geometry[0].plates, geometry[2],
+                                                                              strict=True)]
+                for vertices, faces in zip(self._moving_vertices_by_object(tau), self._moving_faces, strict=True):
+                    moving += list(zip(vertices, faces, strict=True))
+            rects = {}
+            for side in _SIDES:
+                pieces = self._triangle_rects(side, moving)
+                drawn = [self._drawn_rect(side, arm)] if arm else []
+                drawn += [self._drawn_rect(side, [v for v, _ in moving])] if pieces is None else pieces
+                rects[side] = _merged_rects(drawn)
             sums: dict[tuple[str, int], np.ndarray] = {}
             for side in _SIDES:
                 self._restore(side)
@@ -868,15 +947,10 @@ class StereoRenderer:
                 self._set_moving(tau)
                 last = k == len(subframes) - 1
                 for side in _SIDES:
-                    for j, rect in enumerate(rects[side]):
-                        # What moves but lies wholly outside this rectangle (the arm, for a cable's strip)
-                        # draws no pixel in it: left out like the static objects.
-                        apart = [g for g, box in enumerate(group_rects[side]) if box is not None and
-                                 not _overlap(box, rect)]
-                        start = time.perf_counter()
-                        colour, z = self._render_region(side, rect, depth and last and side == "left",
-                                                        self._group_nodes(apart))
-                        gl[side] += time.perf_counter() - start
+                    start = time.perf_counter()
+                    drawn = self._render_regions(side, rects[side], depth and last and side == "left")
+                    gl[side] += time.perf_counter() - start
+                    for j, (rect, (colour, z)) in enumerate(zip(rects[side], drawn, strict=True)):
                         if accumulate:
                             linear = _TO_LINEAR[colour]
                             sums[side, j] = linear if k == 0 else sums[side, j] + linear
@@ -944,11 +1018,6 @@ def _from_linear(linear: np.ndarray) -> np.ndarray:
     display 1..4 are closer together in linear light than a 12-bit step)."""
     display = cv2.pow(np.ascontiguousarray(linear, np.float32), 1.0 / _GAMMA)
     return np.clip(display * 255.0 + 0.5, 0, 255).astype(np.uint8)
-
-
-def _overlap(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> bool:
-    """Whether two (x, y, w, h) rectangles share a pixel."""
-    return a[0] < b[0] + b[2] and b[0] < a[0] + a[2] and a[1] < b[1] + b[3] and b[1] < a[1] + a[3]
 
 
 def _merged_rects(rects: list[tuple[int, int, int, int]]) -> list[tuple[int, int, int, int]]:
