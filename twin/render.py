@@ -50,6 +50,7 @@ _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 60, 1e-1
 _GAMMA = 2.2  # the fragment shader writes colour ** (1 / 2.2)
 _SAMPLES = 4  # pyrender's multisampled framebuffer: 4 samples per pixel
 _PIECE_PX = 96  # a moving object's drawn rectangles: pieces this long along its box's longer side
+_RECT_COST_PX = 8000  # a drawn rectangle's own cost (copy-in, resolve, read-back) in pixels, on llvmpipe
 _DIELECTRIC_F0 = 0.04  # pyrender's own PBR shader: diffuse colour = base * (1 - 0.04)
 
 # A matte (Lambert + ambient) fragment shader in place of pyrender's PBR one: no specular term,
@@ -392,6 +393,7 @@ class StereoRenderer:
             self._want_depth = True
             self._rects = [(0, 0, *self._canvas_size)]
             self._static_samples: dict[str, int] = {}
+            self._raw_boxes: dict[str, list] = {side: [] for side in _SIDES}
             self._renderer._renderer._read_main_framebuffer = self._read_framebuffer
             self._render_static()
 
@@ -753,23 +755,13 @@ class StereoRenderer:
             canvas[1][y:y + h, x:x + w] = zbuf
         canvas[2].append(rect)
 
-    def _raw_roi(self, side: str) -> tuple[int, int, int, int] | None:
-        """(x0, y0, x1, y1) raw pixels whose rays land in this frame's drawn canvas rectangle.
+    def _raw_box(self, side: str, rect) -> tuple[int, int, int, int]:
+        """(x0, y0, x1, y1) raw pixels whose rays land in one canvas rectangle.
 
         Elsewhere the raw image shows the static scene. The distortion maps the rectangle's border
         onto the border of its image (the map is one-to-one), so the border's bounding box holds
-        the whole region. None when no rectangle is known (pyrender's own read-back).
+        the whole region.
         """
-        if not self._fast_readback:
-            return None
-        boxes = [self._raw_box(side, rect) for rect in self._canvas[side][2]]
-        if not boxes:
-            return 0, 0, 0, 0
-        return (min(b[0] for b in boxes), min(b[1] for b in boxes), max(b[2] for b in boxes),
-                max(b[3] for b in boxes))
-
-    def _raw_box(self, side: str, rect) -> tuple[int, int, int, int]:
-        """The raw pixels whose rays land in one canvas rectangle (see ``_raw_roi``)."""
         x, y_up, w, h = rect
         height = self._canvas_size[1]
         top = height - (y_up + h)  # top-down canvas rows
@@ -798,6 +790,7 @@ class StereoRenderer:
         # Only the regions that can show something new are resampled; the rest is the static scene.
         out = self._static_raw[side].copy()
         boxes = [self._raw_box(side, rect) for rect in self._canvas[side][2]]
+        self._raw_boxes[side] = boxes
         for x0, y0, x1, y1 in boxes:
             if x1 > x0 and y1 > y0:
                 out[y0:y1, x0:x1] = cv2.remap(canvas, eye.map1[y0:y1, x0:x1], eye.map2[y0:y1, x0:x1],
@@ -812,12 +805,11 @@ class StereoRenderer:
             z[z <= 0] = np.inf
             return z
         z = self._static_depth.copy()
-        x0, y0, x1, y1 = self._raw_roi("left")
-        if x1 <= x0 or y1 <= y0:
-            return z
-        d = cv2.remap(zbuf, eye.map1[y0:y1, x0:x1], eye.map2[y0:y1, x0:x1], cv2.INTER_NEAREST,
-                      borderMode=cv2.BORDER_REPLICATE)
-        z[y0:y1, x0:x1] = _gl_depth_to_metres(d)
+        for x0, y0, x1, y1 in self._raw_boxes["left"]:  # the left image's boxes, from _to_raw
+            if x1 > x0 and y1 > y0:
+                d = cv2.remap(zbuf, eye.map1[y0:y1, x0:x1], eye.map2[y0:y1, x0:x1], cv2.INTER_NEAREST,
+                              borderMode=cv2.BORDER_REPLICATE)
+                z[y0:y1, x0:x1] = _gl_depth_to_metres(d)
         return z
 
     def _subframes(self, shape: ArmShape | None, t_s: float,
@@ -1022,7 +1014,8 @@ def _from_linear(linear: np.ndarray) -> np.ndarray:
 
 def _merged_rects(rects: list[tuple[int, int, int, int]]) -> list[tuple[int, int, int, int]]:
     """Bottom-up (x, y, w, h) rectangles, merged while two of them overlap or a merge costs little more
-    area than drawing them apart; empty (1 x 1) rectangles dropped."""
+    area than drawing them apart (30 %, or less than a rectangle's own cost); empty (1 x 1) rectangles
+    dropped."""
     rects = [r for r in rects if r[2] > 1 and r[3] > 1]
     merged = True
     while merged and len(rects) > 1:
@@ -1033,7 +1026,8 @@ def _merged_rects(rects: list[tuple[int, int, int, int]]) -> list[tuple[int, int
                 bx, by, bw, bh = rects[b]
                 x0, y0 = min(ax, bx), min(ay, by)
                 x1, y1 = max(ax + aw, bx + bw), max(ay + ah, by + bh)
-                if (x1 - x0) * (y1 - y0) <= 1.3 * (aw * ah + bw * bh):
+                union, apart = (x1 - x0) * (y1 - y0), aw * ah + bw * bh
+                if union <= 1.3 * apart or union - apart <= _RECT_COST_PX:
                     rects[a] = (x0, y0, x1 - x0, y1 - y0)
                     del rects[b]
                     merged = True
