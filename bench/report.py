@@ -58,7 +58,7 @@ _COLOURS = {"main": "tab:green", "paper": "tab:purple", "paper_nearest": "tab:or
 # with the numpy SOM for Fig 13's speed (its estimates equal the compiled SOM's to rounding).
 _VARIANTS = {"nearest": {"compensation": "nearest"}, "nearest_image": {"compensation": "nearest_image"},
              "none": {"compensation": "none"}, "numpy": {"compensation": "nearest", "som_compiled": False}}
-_VARIANT_LABELS = {"nearest": "with compensation (crossing nearest along the spline)",
+_VARIANT_LABELS = {"nearest": "with compensation (crossing nearest the same place along the arm)",
                    "nearest_image": "with compensation, crossing nearest in the image",
                    "none": "no compensation", "numpy": "with compensation, numpy SOM"}
 CHECKS = ("holes", "self_approach", "length", "behind_camera")
@@ -637,8 +637,9 @@ def _write_markdown(run: Run, compensation: dict | None, written: Mapping[str, s
         lines += ["", "## Misalignment compensation (Fig 12)", "",
                   f"Paper mode re-run on {len(compensation['frames'])} recorded frames (evenly spread, warm start), "
                   "with the paper's compensation (a cubic spline through the right nodes; of its crossings of left "
-                  "node j's row, the one nearest node j along the spline), with the crossing nearest right node j "
-                  "in the image, and without:", "",
+                  "node j's row, the one nearest node j's place along the arm; nodes whose row the spline misses "
+                  "or crosses under 15 degrees placed by arc length between the nodes the rows pin), with the "
+                  "crossing nearest right node j in the image, and without:", "",
                   "| paper mode | valid | RMSE exact (mm) | median (mm) | RMSE x/y/z exact (mm) | "
                   "RMSE x/y/z vs Q' (mm) | misalignment eq. (11) (px) |", "|---|---|---|---|---|---|---|"]
         for variant in ("nearest", "nearest_image", "none"):
