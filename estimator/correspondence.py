@@ -82,10 +82,11 @@ def compensate_nodes(left_nodes: np.ndarray, right_nodes: np.ndarray, window: fl
                          f"{left_nodes.shape} and {right_nodes.shape}")
     n = len(right_nodes)
     knots = np.arange(n)
+    grid = np.linspace(0, n - 1, (n - 1) * samples_per_node + 1)
     spline = CubicSpline(knots, right_nodes, axis=0)
-    dense = spline(np.linspace(0, n - 1, (n - 1) * samples_per_node + 1))
+    dense = spline(grid)
     arc_right = _arc(dense)
-    arc_left = _arc(CubicSpline(knots, left_nodes, axis=0)(np.linspace(0, n - 1, (n - 1) * samples_per_node + 1)))
+    arc_left = _arc(CubicSpline(knots, left_nodes, axis=0)(grid))
     place_left = arc_left[::samples_per_node] / max(arc_left[-1], 1e-12)  # node j's arc fraction
     samples = np.arange(len(dense))
     out = right_nodes.copy()
