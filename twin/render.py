@@ -612,8 +612,8 @@ class StereoRenderer:
     def _drawn_rect(self, side: str, vertices: list[np.ndarray]) -> tuple[int, int, int, int]:
         """Bottom-up (x, y, w, h) canvas rectangle holding every given vertex.
 
-        Outside it the canvas shows the static scene, so only this rectangle is cleared, drawn
-        and read (a scissor test): it is what keeps a stereo pair within budget on a CPU rasteriser.
+        Outside it the canvas shows the static scene, so only this rectangle is restored, drawn
+        and read: it is what keeps a stereo pair within budget on a CPU rasteriser.
         """
         width, height = self._canvas_size
         if not vertices:
@@ -914,8 +914,8 @@ class StereoRenderer:
         zbuf = None
         t1 = time.perf_counter()
         if self._fast_readback:
-            # One rectangle for the arm (and props), one per moving object; rectangles that overlap
-            # much are merged. A cable crossing the whole view costs a thin strip, not a union box.
+            # One rectangle for the arm (and props), pieces around each moving object's triangles;
+            # rectangles that overlap, or cost little more merged, are merged.
             arm: list[np.ndarray] = list(self._prop_vertices)
             moving: list[tuple[np.ndarray, np.ndarray]] = []  # (world vertices, faces) of every moving mesh
             for geometry, tau in subframes:
