@@ -271,9 +271,10 @@ class StereoRenderer:
     """Render raw stereo pairs of an :class:`ArmShape` (and optional props) seen by a :class:`StereoRig`.
 
     One OpenGL context, scene and canvas are reused. The static part of a lab scene (the wall,
-    the floor, objects that do not move) is rendered once per eye; per frame only the rectangle
-    holding the arm, the moving objects and the props is drawn again, so a cluttered scene costs
-    little more than an empty one.
+    the floor, objects that do not move) is rendered once per eye and its multisamples kept; per
+    frame the rectangles around the arm, the props and the moving objects get those samples back
+    and only what moves is drawn over them, so a cluttered scene costs little more than an empty
+    one and the pixels are those of drawing everything.
 
     Args:
         rig: the cameras, their calibration, pose and the default appearance.
@@ -282,8 +283,8 @@ class StereoRenderer:
             recorded frame's noise can be drawn again from its noise-free image.
         tube_sides: vertices around the tube (48 keeps the polygon within 0.05 px of a circle).
         sensor: overrides ``rig.sensor`` (e.g. noise-free renders for measurements).
-        fast_readback: draw and read only the rectangle holding the objects (scissor test) and
-            read depth only where needed; ``False`` uses pyrender's own full read-back (slower,
+        fast_readback: draw and read only the rectangles holding what moves and read depth
+            only where needed; ``False`` uses pyrender's own full read-back (slower,
             kept as a reference and a fallback).
         scene: what surrounds the arm (:class:`twin.scene.LabScene`); None is the clean scene
             (camera.toml's uniform background, lights and sensor).
