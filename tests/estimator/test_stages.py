@@ -297,9 +297,11 @@ def test_compensation_carries_rows_that_run_along_the_arm():
 
 def test_compensation_of_an_arm_along_one_row_keeps_the_places_along_it():
     """No row pins anything when the whole arm lies along the rows: every node is carried from the two
-    ends, so evenly spread chains keep their nodes (shifted onto the left rows), nothing is lost."""
-    left = np.column_stack([np.linspace(400, 700, 20), np.full(20, 300.0)])
-    right = left - [70.0, -0.6]
+    ends by arc length, so a right chain spread unevenly along the same stretch still gives each left
+    node its own place (70 px of disparity everywhere), on the left node's row."""
+    f = np.linspace(0, 1, 20)
+    left = np.column_stack([400 + 300 * f, np.full(20, 300.0)])
+    right = np.column_stack([330 + 300 * (f + 0.05 * np.sin(np.pi * f)), np.full(20, 300.6)])
     out = compensate_nodes(left, right, window=1 / 19, min_sine=0.25)
     np.testing.assert_allclose(out[:, 0], left[:, 0] - 70.0, atol=1e-6)
     np.testing.assert_allclose(out[:, 1], left[:, 1])
