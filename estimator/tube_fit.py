@@ -41,7 +41,7 @@ from estimator.bspline import DEGREE, basis, clamped_knots, evaluate_many, fit_c
 CONTROL_POINTS = 16
 RADIUS_BINS = 24
 EDGE_SIGMA_PX = 0.35  # noise of one sub-pixel edge
-HUBER_PX = 1.0  # residuals beyond this (in pixels) count linearly, not quadratically
+HUBER_PX = 1.0  # a focused edge's residual beyond this (pixels; others scaled by their sigma) counts linearly
 SMOOTH_SIGMA_M = 0.015  # third difference of the control points that costs as much as one pixel of edge
 END_SIGMA_PX = 2.0  # the ends are found like the edges, but on a cap or against the mount's rim
 END_STIFFNESS = 4.0
@@ -424,7 +424,9 @@ def _normal_equations(bases, control, radii, bins, baseline, focal, kinds, sides
         res_px = res * focal
         residuals[i] = res_px
         scaled = res_px / sigmas[i]
-        a = abs(res_px)
+        # The threshold is for a focused edge; any other observation's residual is read in units of its
+        # own sigma (a blurred edge 2 px off is as ordinary as a focused one 0.5 px off).
+        a = abs(res_px) * EDGE_SIGMA_PX / sigmas[i]
         # Huber (huber > 0): beyond the threshold a residual counts linearly; redescending (huber < 0,
         # Geman-McClure-like): a gross outlier stops counting at all.
         w = (1.0 if a <= huber else huber / a) if huber > 0.0 else 1.0 / (1.0 + (a / huber) ** 2)

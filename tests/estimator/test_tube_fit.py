@@ -20,6 +20,7 @@ from estimator.bspline import basis
 from estimator.metrics import closest_points_on_polyline
 from estimator.tube_fit import (
     CAP_SAMPLES,
+    EDGE_SIGMA_PX,
     RADIUS_BINS,
     RADIUS_FLOOR_M,
     SIDE_PIECE,
@@ -254,6 +255,27 @@ def test_a_wrong_radius_moves_that_depth_and_shows_in_the_residuals():
         result = fit(edges, axis, _rows_curve(0.02), radius=wrong, sigma=1e-4)
         assert sign * _middle_depth_error_mm(result) > 30.0
         assert result.inliers < 0.8 or result.rms_px > 0.6
+
+
+def test_robust_loss_reads_each_residual_in_units_of_its_own_sigma(bent_tube):
+    """A blurred edge's place is less certain (a larger sigma): 2 px off with a sigma of 1.4 px is as
+    ordinary as 0.5 px off with 0.35 px, and must count alike. A threshold in pixels, the same for
+    every edge, treated the blurred one as half an outlier and let the smoothness prior outweigh the
+    blurred edges round tight late-ramp bends (the twin's dim and blur scenes: tips 10-20 mm off)."""
+    axis, _ = bent_tube
+    edges = tube_edges(axis, 0.022)
+    outward = edges.xy - edges.centre
+    outward /= np.linalg.norm(outward, axis=1, keepdims=True)
+
+    def cost_off(offset_px: float, sigma_px: float) -> float:
+        moved = EdgeSet(edges.side, edges.xy + outward * offset_px / F, edges.centre,
+                        np.full(len(edges.side), EDGE_SIGMA_PX / sigma_px))
+        return fit(moved, axis, axis, radius=0.022, iterations=0).cost  # the cost where the fit starts
+
+    exact = cost_off(0.0, EDGE_SIGMA_PX)
+    sharp, blurred = cost_off(0.5, EDGE_SIGMA_PX) - exact, cost_off(2.0, 4.0 * EDGE_SIGMA_PX) - exact
+    assert sharp > 1.0 * len(edges.side)  # about (0.5 / 0.35)^2 per edge
+    assert blurred == pytest.approx(sharp, rel=0.01)
 
 
 HUBER_DRIFT = pytest.mark.xfail(
