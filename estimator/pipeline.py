@@ -54,6 +54,7 @@ from estimator.tube_fit import (
     TubeFit,
     fit_tube,
     fuse_radius,
+    misfit_edges,
 )
 
 COARSE_WIDTH_PX = 320  # the coarse images the arm is looked for on are about this wide
@@ -653,8 +654,8 @@ class CenterlineEstimator:
         # tube changes a little with its pose and its shading, and a radius held tighter than a
         # millimetre pulled depth off with it (late ramp, lab: 1.7 -> 2.2 mm RMSE at 0.03 mm).
         sigma = np.maximum(1.0 / np.sqrt(self._radius_info), RADIUS_FIT_SIGMA_M)
-        def fit_from(start):
-            return fit_tube(edges, ends, dense, self._radius, sigma, focal_px=f, baseline_m=self._rect.baseline_m,
+        def fit_from(start, edges_=edges):
+            return fit_tube(edges_, ends, dense, self._radius, sigma, focal_px=f, baseline_m=self._rect.baseline_m,
                             base_prior=self._base.prior, initial_control=start, tip_outline=tip_outline)
 
         fit = fit_from(warm_control)
@@ -668,6 +669,14 @@ class CenterlineEstimator:
                 fit = other
         if fit is None:
             raise _NoArmError("the tube could not be fitted to the silhouettes' edges")
+        misfit = misfit_edges(fit, edges, self._rect.baseline_m)
+        if misfit.any():
+            # A stretch of one silhouette line the tube does not follow is an occluder's edge along
+            # the tube's side, not the tube's: fitted again without it, from where the fit ended.
+            kept = edges.subset(~misfit)
+            refit = fit_from(fit.control, kept)
+            if refit is not None:
+                fit, edges = refit, kept
         if fit.inliers < MIN_TUBE_INLIERS or fit.rms_px > MAX_TUBE_RMS_PX:
             raise _NoArmError(f"the silhouettes do not fit one tube: {fit.inliers:.0%} of their edges within "
                               f"a pixel, {fit.rms_px:.2f} px RMS")

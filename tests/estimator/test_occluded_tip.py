@@ -1,9 +1,10 @@
 """A dark cable running in front of the arm along its tip's edge (tests/scenes.py, the raw ZED-like
 pair, the lab's brick wall; one cold frame per case).
 
-The cable hides a sliver of the tube's side and lends its own edge to the outline around the tip.
-The fitted end then cannot explain that outline: the tip must not be called measured, and a frame
-whose tip is far off must not come back valid.
+The cable hides a sliver of the tube's side in one image and lends its own edge to the outline
+around the tip. The tube then does not follow that stretch of silhouette line, and the fitted end
+cannot explain that outline: neither may count as a measurement, and a frame far off must not come
+back valid.
 """
 
 import numpy as np
@@ -46,11 +47,30 @@ def test_an_outline_the_fitted_end_cannot_explain_does_not_measure_the_tip():
     assert not result.valid or score["max_mm"] <= 10.0, (result.reason, score and score["max_mm"])
 
 
-@pytest.mark.xfail(strict=True, reason="estimator/pipeline.py: a cable along the tip's edge narrows its silhouette "
-                                       "evenly; with its outline's edge the tube fits both images with the tip "
-                                       "off (measured: c_bend 26 mm, straight 104 mm, s_curve 22 mm, valid)")
-@pytest.mark.parametrize("shape, side", [("c_bend", 1.0), ("straight", -1.0), ("s_curve", 1.0)])
-def test_no_frame_is_valid_while_the_cable_along_its_tip_puts_it_far_off(shape, side):
+@pytest.mark.parametrize("shape, side, angle", [("c_bend", 1.0, 0.0), ("c_bend", 1.0, 0.15), ("three_d", 1.0, 0.0),
+                                               ("towards_camera", 1.0, 0.0)])
+def test_no_frame_is_valid_while_the_cable_along_its_tip_puts_it_far_off(shape, side, angle):
+    """The cable 14 mm beside the axis: c_bend, three_d and towards_camera came back valid 16, 32 and
+    32 mm off (the fit split the difference between one image's narrowed silhouette and the other's)
+    until stretches of a silhouette line the tube does not follow were left out and the tube fitted
+    again (c_bend: 7.6 mm then; the other two refused)."""
+    points, _ = standard_shapes()[shape]
+    result, score = _estimate(shape, _along_the_tip(points, side, 0.014, angle))
+    assert not result.valid or score["max_mm"] <= 10.0, score and round(score["max_mm"], 1)
+
+
+KNOWN_MISSES = {
+    "straight": "a cable along the whole straight arm lies beside it in one image and across it in the other; "
+                "the tube fits both images consistently, 100 mm off (measured: 104 mm, valid)",
+    "s_curve": "after the refit without the stretch the tube did not follow, the tip is still 12.2 mm off "
+               "(valid; 75 mm before the refit)",
+}
+
+
+@pytest.mark.parametrize("shape, side", [
+    pytest.param("straight", -1.0, marks=pytest.mark.xfail(strict=True, reason=KNOWN_MISSES["straight"])),
+    pytest.param("s_curve", 1.0, marks=pytest.mark.xfail(strict=True, reason=KNOWN_MISSES["s_curve"]))])
+def test_known_cases_of_a_cable_along_the_arm_still_give_a_confident_wrong_answer(shape, side):
     points, _ = standard_shapes()[shape]
     result, score = _estimate(shape, _along_the_tip(points, side, 0.014))
     assert not result.valid or score["max_mm"] <= 10.0, score and round(score["max_mm"], 1)
