@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from estimator.arm_region import TubeGeometry, find_tube, keep_in_corridor, saturation_split
+from estimator.bspline import clamped_knots, evaluate_many
 from estimator.calibration import StereoCalibration
 from estimator.centerline import centerline_nodes
 from estimator.colour_model import ArmColourModel
@@ -69,6 +70,7 @@ OUTLINE_BACK_HALVES = 1.5  # outline points further back from the end than this 
 # many radii: an end's cap or mount leaves about half of that (10-22 mm), a baseplate or a
 # cable across the arm 35-60 mm (with the chords beside them that are not clean).
 MEASURED_GAP_RADII = 1.2
+ENDS_AGREE_PX = 6.0  # the two images' tip ends further apart than this from one end of one tube: not both the tip
 EXPLAINED_SIGMAS = 1.5  # a fitted tip end whose outline residuals exceed this RMS (in sigmas) did not measure it
 MAX_END_BRIDGE_WIDTHS = 1.0  # an end hidden over more than this many arm widths is a guess, not a measurement
 # The fit's covariance overstates the error of a well-seen arm (typically 3-15 mm at the tip, where
@@ -647,6 +649,18 @@ class CenterlineEstimator:
             tip_outline[k] = (outlines[1] - centre) / f
         side_ids = np.concatenate(side_ids)
         edges = EdgeSet(side_ids, np.concatenate(xy), np.concatenate(chord), _edge_weights(np.concatenate(steps)))
+        near_tip = dense[-1] if dense is not None else evaluate_many(clamped_knots(len(warm_control)), warm_control,
+                                                                     np.array([1.0]))[0][0]
+        if not _ends_agree(ends["tip"] * f, f * self._rect.baseline_m / near_tip[2]):
+            # The two images' tip ends are not one end of one tube: at least one is something else
+            # (a cable across the tip in one view). Left to them, the fit followed it (a frame 197 mm
+            # off at the tip, valid): the tube is fitted to the edges alone, and whatever it puts
+            # beyond the last of them is bridged, not measured.
+            ends["tip"][:] = np.nan
+            tip_outline = {}
+            tip_seen = False
+        else:
+            tip_seen = True
         if self._radius is None:
             self._radius = np.full(RADIUS_BINS, cfg.arm_radius_m)
             self._radius_info = np.full(RADIUS_BINS, 1.0 / RADIUS_PRIOR_SIGMA_M**2)
@@ -695,7 +709,7 @@ class CenterlineEstimator:
                 and _explained(fit.tip_residual_px.get(k), CAP_SIGMA_PX / np.median(_edge_weights(steps[k])))]
         edge_u = np.concatenate([fit.edge_u, np.ones(len(seen))])
         edge_side = np.concatenate([edges.side, np.array(seen, dtype=edges.side.dtype)])
-        measured = _measured(at, edge_u, edge_side, MEASURED_GAP_RADII * radius / max(arc[-1], 1e-9))
+        measured = _measured(at, edge_u, edge_side, MEASURED_GAP_RADII * radius / max(arc[-1], 1e-9), tip_seen)
         if len(seen) == 2:
             measured[-1] = True  # the tip itself was fitted to its outline in both images
         bridged = _longest_run(~measured, points)
@@ -942,9 +956,11 @@ def _uncovered(samples: np.ndarray, nodes: np.ndarray, width_px: float) -> float
     return float(np.mean(band[at[:, 1], at[:, 0]] == 0))
 
 
-def _measured(at: np.ndarray, edge_u: np.ndarray, edge_side: np.ndarray, gap_u: float) -> np.ndarray:
+def _measured(at: np.ndarray, edge_u: np.ndarray, edge_side: np.ndarray, gap_u: float,
+              tip_seen: bool = True) -> np.ndarray:
     """(n,) False where an output u falls in a stretch of either image without edges longer than
-    ``gap_u`` (an occluder, a baseplate, the arm hidden at an end), True elsewhere.
+    ``gap_u`` (an occluder, a baseplate, the arm hidden at an end), True elsewhere. Without
+    ``tip_seen`` nothing marks where the arm ends, so no point beyond the last edges is measured.
 
     A stretch, not a distance: however the output points fall along the arm, one inside an
     occluded stretch is bridged, even next to its edge.
@@ -954,10 +970,21 @@ def _measured(at: np.ndarray, edge_u: np.ndarray, edge_side: np.ndarray, gap_u: 
         u = np.sort(edge_u[edge_side == side])
         if len(u) == 0:
             return np.zeros(len(at), bool)
-        bounds = np.concatenate([[0.0], u, [1.0]])
+        bounds = np.concatenate([[0.0], u, [1.0 if tip_seen else np.inf]])
         i = np.searchsorted(u, at)  # at lies in (bounds[i], bounds[i + 1])
         out &= (bounds[i + 1] - bounds[i]) <= gap_u
     return out
+
+
+def _ends_agree(ends_px: np.ndarray, disparity_px: float) -> bool:
+    """Whether the left and right images' ends ((2, 2) rectified pixels, relative to the same
+    centre) can be one end of one tube: on the same row, ``disparity_px`` apart (the tube's just
+    before it), within ``ENDS_AGREE_PX``. A flat end overshoots its axis by r |t.s| in each view,
+    and the two views' s differ by the baseline's angle: about a pixel. Unseen ends agree."""
+    if not np.all(np.isfinite(ends_px)) or not np.isfinite(disparity_px):
+        return True
+    left, right = ends_px
+    return float(np.hypot(left[0] - right[0] - disparity_px, left[1] - right[1])) <= ENDS_AGREE_PX
 
 
 def _explained(residuals_px: np.ndarray | None, sigma_px: float) -> bool:
