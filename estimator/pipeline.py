@@ -24,7 +24,6 @@ import cv2
 import numpy as np
 
 from estimator.arm_region import TubeGeometry, find_tube, keep_in_corridor, saturation_split
-from estimator.bspline import clamped_knots, evaluate_many
 from estimator.calibration import StereoCalibration
 from estimator.centerline import centerline_nodes
 from estimator.colour_model import ArmColourModel
@@ -56,6 +55,7 @@ from estimator.tube_fit import (
     fit_tube,
     fuse_radius,
     misfit_edges,
+    silhouette_lines,
 )
 
 COARSE_WIDTH_PX = 320  # the coarse images the arm is looked for on are about this wide
@@ -70,7 +70,6 @@ OUTLINE_BACK_HALVES = 1.5  # outline points further back from the end than this 
 # many radii: an end's cap or mount leaves about half of that (10-22 mm), a baseplate or a
 # cable across the arm 35-60 mm (with the chords beside them that are not clean).
 MEASURED_GAP_RADII = 1.2
-ENDS_AGREE_PX = 6.0  # the two images' tip ends further apart than this from one end of one tube: not both the tip
 EXPLAINED_SIGMAS = 1.5  # a fitted tip end whose outline residuals exceed this RMS (in sigmas) did not measure it
 MAX_END_BRIDGE_WIDTHS = 1.0  # an end hidden over more than this many arm widths is a guess, not a measurement
 # The fit's covariance overstates the error of a well-seen arm (typically 3-15 mm at the tip, where
@@ -649,18 +648,6 @@ class CenterlineEstimator:
             tip_outline[k] = (outlines[1] - centre) / f
         side_ids = np.concatenate(side_ids)
         edges = EdgeSet(side_ids, np.concatenate(xy), np.concatenate(chord), _edge_weights(np.concatenate(steps)))
-        near_tip = dense[-1] if dense is not None else evaluate_many(clamped_knots(len(warm_control)), warm_control,
-                                                                     np.array([1.0]))[0][0]
-        if not _ends_agree(ends["tip"] * f, f * self._rect.baseline_m / near_tip[2]):
-            # The two images' tip ends are not one end of one tube: at least one is something else
-            # (a cable across the tip in one view). Left to them, the fit followed it (a frame 197 mm
-            # off at the tip, valid): the tube is fitted to the edges alone, and whatever it puts
-            # beyond the last of them is bridged, not measured.
-            ends["tip"][:] = np.nan
-            tip_outline = {}
-            tip_seen = False
-        else:
-            tip_seen = True
         if self._radius is None:
             self._radius = np.full(RADIUS_BINS, cfg.arm_radius_m)
             self._radius_info = np.full(RADIUS_BINS, 1.0 / RADIUS_PRIOR_SIGMA_M**2)
@@ -668,17 +655,17 @@ class CenterlineEstimator:
         # tube changes a little with its pose and its shading, and a radius held tighter than a
         # millimetre pulled depth off with it (late ramp, lab: 1.7 -> 2.2 mm RMSE at 0.03 mm).
         sigma = np.maximum(1.0 / np.sqrt(self._radius_info), RADIUS_FIT_SIGMA_M)
-        def fit_from(start, edges_=edges):
+        def fit_from(start, edges_):
             return fit_tube(edges_, ends, dense, self._radius, sigma, focal_px=f, baseline_m=self._rect.baseline_m,
                             base_prior=self._base.prior, initial_control=start, tip_outline=tip_outline)
 
-        fit = fit_from(warm_control)
+        fit = fit_from(warm_control, edges)
         if warm_control is None and self._warm_fit is not None and self._moved_from_last(fit) > SECOND_START_M:
             # A second start from the previous frame's tube: the fit can settle where a bend near the
             # tip trades depth for shape (late ramp, lab: the tip 20 mm off in depth at a higher cost
             # than the tube near the truth). Only where the tube moved far from the last frame's
             # (tracking slowly, both starts end alike). The lower cost wins.
-            other = fit_from(self._warm_fit.control)
+            other = fit_from(self._warm_fit.control, edges)
             if other is not None and (fit is None or other.cost < fit.cost):
                 fit = other
         if fit is None:
@@ -687,10 +674,26 @@ class CenterlineEstimator:
         if misfit.any():
             # A stretch of one silhouette line the tube does not follow is an occluder's edge along
             # the tube's side, not the tube's: fitted again without it, from where the fit ended.
+            # Where it follows neither line of one image over the same stretch, that image and the
+            # tube disagree about the arm itself.
+            _check_one_line_off(fit, edges, misfit, self._rect.baseline_m, float(np.mean(self._radius)))
             kept = edges.subset(~misfit)
             refit = fit_from(fit.control, kept)
             if refit is not None:
                 fit, edges = refit, kept
+        # An outline round the tip that the fitted end does not explain was not all the tube's (an
+        # arm-coloured cable touching the tip, an occluder lending it its edge): that image's tip
+        # observations are left out and the tube fitted again. Outline points are expected as sharp
+        # as the image's edges are: blur widens both.
+        unexplained = [k for k, outline in tip_outline.items() if len(outline) >= MIN_CAP_POINTS and not
+                       _explained(fit.tip_residual_px.get(k), CAP_SIGMA_PX / np.median(_edge_weights(steps[k])))]
+        if unexplained:
+            for k in unexplained:
+                del tip_outline[k]
+                ends["tip"][k] = np.nan
+            refit = fit_from(warm_control, edges)
+            if refit is not None:
+                fit = refit
         if fit.inliers < MIN_TUBE_INLIERS or fit.rms_px > MAX_TUBE_RMS_PX:
             raise _NoArmError(f"the silhouettes do not fit one tube: {fit.inliers:.0%} of their edges within "
                               f"a pixel, {fit.rms_px:.2f} px RMS")
@@ -701,17 +704,17 @@ class CenterlineEstimator:
         points = fit.points(at)
         self._check_length(points)
         radius = float(np.mean(fit.radius_bins))
-        # The tip's outline, where the fitted end explains it, is seen as well as any edge. One the
-        # end does not explain was not all the tube's (an occluder touching the tip lends it its edge).
-        # Its points are expected as sharp as the image's edges are: blur widens both.
-        seen = [k for k, outline in tip_outline.items()
-                if len(outline) >= MIN_CAP_POINTS
-                and _explained(fit.tip_residual_px.get(k), CAP_SIGMA_PX / np.median(_edge_weights(steps[k])))]
+        # The tip's outline, where it was fitted, is seen as well as any edge; an image left without
+        # an end of the tip marks nothing beyond its last edges as measured.
+        seen = [k for k, outline in tip_outline.items() if len(outline) >= MIN_CAP_POINTS]
         edge_u = np.concatenate([fit.edge_u, np.ones(len(seen))])
         edge_side = np.concatenate([edges.side, np.array(seen, dtype=edges.side.dtype)])
+        tip_seen = tuple(k in seen or bool(np.all(np.isfinite(ends["tip"][k]))) for k in range(len(SIDES)))
         measured = _measured(at, edge_u, edge_side, MEASURED_GAP_RADII * radius / max(arc[-1], 1e-9), tip_seen)
         if len(seen) == 2:
             measured[-1] = True  # the tip itself was fitted to its outline in both images
+        elif not all(tip_seen):
+            measured[-1] = False  # an image saw no end of the tip
         bridged = _longest_run(~measured, points)
         if bridged > cfg.max_bridge_widths * 2.0 * radius:
             raise _NoArmError(f"{bridged * 1e3:.0f} mm of the arm bridged without its edges in both images "
@@ -957,10 +960,11 @@ def _uncovered(samples: np.ndarray, nodes: np.ndarray, width_px: float) -> float
 
 
 def _measured(at: np.ndarray, edge_u: np.ndarray, edge_side: np.ndarray, gap_u: float,
-              tip_seen: bool = True) -> np.ndarray:
+              tip_seen: tuple[bool, bool] = (True, True)) -> np.ndarray:
     """(n,) False where an output u falls in a stretch of either image without edges longer than
-    ``gap_u`` (an occluder, a baseplate, the arm hidden at an end), True elsewhere. Without
-    ``tip_seen`` nothing marks where the arm ends, so no point beyond the last edges is measured.
+    ``gap_u`` (an occluder, a baseplate, the arm hidden at an end), True elsewhere. In an image
+    whose end of the tip was not seen (``tip_seen``) nothing marks where the arm ends, so no point
+    beyond its last edges is measured.
 
     A stretch, not a distance: however the output points fall along the arm, one inside an
     occluded stretch is bridged, even next to its edge.
@@ -970,21 +974,31 @@ def _measured(at: np.ndarray, edge_u: np.ndarray, edge_side: np.ndarray, gap_u: 
         u = np.sort(edge_u[edge_side == side])
         if len(u) == 0:
             return np.zeros(len(at), bool)
-        bounds = np.concatenate([[0.0], u, [1.0 if tip_seen else np.inf]])
+        if not tip_seen[side]:
+            u = u[u < 1.0 - 1e-9]  # edges past the tube's end attach to it; without the tip they end nothing
+            if len(u) == 0:
+                return np.zeros(len(at), bool)
+        bounds = np.concatenate([[0.0], u, [1.0 if tip_seen[side] else np.inf]])
         i = np.searchsorted(u, at)  # at lies in (bounds[i], bounds[i + 1])
         out &= (bounds[i + 1] - bounds[i]) <= gap_u
     return out
 
 
-def _ends_agree(ends_px: np.ndarray, disparity_px: float) -> bool:
-    """Whether the left and right images' ends ((2, 2) rectified pixels, relative to the same
-    centre) can be one end of one tube: on the same row, ``disparity_px`` apart (the tube's just
-    before it), within ``ENDS_AGREE_PX``. A flat end overshoots its axis by r |t.s| in each view,
-    and the two views' s differ by the baseline's angle: about a pixel. Unseen ends agree."""
-    if not np.all(np.isfinite(ends_px)) or not np.isfinite(disparity_px):
-        return True
-    left, right = ends_px
-    return float(np.hypot(left[0] - right[0] - disparity_px, left[1] - right[1])) <= ENDS_AGREE_PX
+def _check_one_line_off(fit: TubeFit, edges: EdgeSet, misfit: np.ndarray, baseline_m: float, radius_m: float) -> None:
+    """Raise when the tube follows neither silhouette line of one image over the same stretch of arc:
+    not an occluder along one side, but that image and the fitted tube disagreeing about the arm."""
+    lines = silhouette_lines(fit, edges, baseline_m)
+    length = float(np.sum(np.linalg.norm(np.diff(fit.points(np.linspace(0.0, 1.0, 121)), axis=0), axis=1)))
+    for image, side in enumerate(SIDES):
+        spans = []
+        for line in (-1.0, 1.0):
+            u = fit.edge_u[misfit & (edges.side == image) & (lines == line)]
+            spans.append((u.min(), u.max()) if len(u) else None)
+        if spans[0] and spans[1] and min(spans[0][1], spans[1][1]) >= max(spans[0][0], spans[1][0]):
+            over = (max(spans[0][1], spans[1][1]) - min(spans[0][0], spans[1][0])) * length
+            raise _NoArmError(f"the tube follows neither side of the {side} image's silhouette over "
+                              f"{over * 1e3:.0f} mm of the arm ({over / (2.0 * radius_m):.1f} arm widths): that "
+                              "image and the other disagree about the arm there")
 
 
 def _explained(residuals_px: np.ndarray | None, sigma_px: float) -> bool:

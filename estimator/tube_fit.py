@@ -79,6 +79,7 @@ class EdgeSet:
     weight: np.ndarray
 
     def subset(self, keep: np.ndarray) -> EdgeSet:
+        """The edges where ``keep`` (a (K,) boolean mask) is True."""
         return EdgeSet(self.side[keep], self.xy[keep], self.centre[keep], self.weight[keep])
 
 
@@ -91,8 +92,8 @@ class TubeFit:
         radius_bins: (RADIUS_BINS,) radius in each bin of arc length (equal bins from base to tip), metres.
         radius_std: (RADIUS_BINS,) their posterior standard deviations, metres.
         covariance: the parameters' covariance (control points then radius bins).
-        rms_px: robust RMS of the edge residuals (pixels).
-        inliers: share of edges within the Huber threshold.
+        rms_px: RMS of the edge residuals within ``HUBER_PX`` pixels (pixels).
+        inliers: share of edges within ``HUBER_PX`` pixels of the fitted silhouette (not scaled by their sigma).
         edge_u: (K,) where each edge is attached on the axis.
         edge_residual_px: (K,) each edge's final residual.
         tip_residual_px: image (0 left, 1 right) -> the final residuals of what located the tip in
@@ -760,19 +761,32 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
                    tip_res, cost)
 
 
+def silhouette_lines(fit: TubeFit, edges: EdgeSet, baseline_m: float) -> np.ndarray:
+    """(K,) which of its image's two silhouette lines of the fitted tube each edge belongs to (+1, -1)."""
+    return _edge_sides(fit.knots, fit.control, baseline_m, edges.side.astype(np.int64), fit.edge_u, edges.xy,
+                       edges.centre)
+
+
 def misfit_edges(fit: TubeFit, edges: EdgeSet, baseline_m: float, window: int = MISFIT_WINDOW,
                  sigmas: float = MISFIT_SIGMAS) -> np.ndarray:
-    """(K,) True for the edges of a stretch of one silhouette line that the fitted tube does not follow:
-    ``window`` consecutive edges of one line in one image whose mean residual exceeds ``sigmas`` of
-    their own sigma.
+    """The edges of stretches of silhouette line that the fitted tube does not follow.
 
     Noise averages out over a stretch; an occluder along the tube's side does not. Its edge narrows
     one image's silhouette evenly, and the fit splits the difference between the two images (a
-    cable along the tip's edge: 1.3-6 px means, the tip 22-33 mm off). Over 1,000 well-fitted twin
+    cable along the tip's edge: 1.3-6 px means, the tip 16-32 mm off). Over 1,000 well-fitted twin
     frames the largest such mean was 3.5 sigma (blur; beside a baseplate about 2).
+
+    Args:
+        fit: the tube fitted to ``edges``.
+        edges: the edges it was fitted to.
+        baseline_m: the stereo baseline (the right camera's centre along x).
+        window: consecutive edges of one line in one image (ordered along the axis) averaged.
+        sigmas: a window whose mean residual exceeds this many of its edges' sigmas is flagged.
+
+    Returns:
+        (K,) True for every edge of a flagged window.
     """
-    lines = _edge_sides(fit.knots, fit.control, baseline_m, edges.side.astype(np.int64), fit.edge_u, edges.xy,
-                        edges.centre)
+    lines = silhouette_lines(fit, edges, baseline_m)
     scaled = fit.edge_residual_px * edges.weight / EDGE_SIGMA_PX
     out = np.zeros(len(edges.side), bool)
     for image in END_SIDES:
