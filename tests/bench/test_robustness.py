@@ -39,7 +39,8 @@ def reduced(tmp_path_factory):
 
 
 # Measured misses on this reduced set (seed 0), each xfail(strict) until fixed; figures measured after
-# the tube fit's robust loss came to read residuals in units of their sigma (commit d87ef5c).
+# the tube fit's robust loss came to read residuals in units of their sigma (commit d87ef5c); the same
+# at b5e5d2e, after the checks for stretches and tip outlines the tube does not explain.
 # The ramp's last frames are the hard ones (t = 47-58 s: the arm runs along the image rows past the
 # second baseplate, so depth there rests on the apparent width: 10-16 mm off at one point while the
 # fit's own standard deviation there says 4-8 mm). The frames are 5 s apart, so each starts nearly cold.
