@@ -70,7 +70,7 @@ OUTLINE_BACK_HALVES = 1.5  # outline points further back from the end than this 
 # many radii: an end's cap or mount leaves about half of that (10-22 mm), a baseplate or a
 # cable across the arm 35-60 mm (with the chords beside them that are not clean).
 MEASURED_GAP_RADII = 1.2
-EXPLAINED_SIGMAS = 1.5  # a fitted tip end whose outline residuals exceed this RMS (in sigmas) did not measure it
+EXPLAINED_SIGMAS = 1.5  # a tip outline the fitted end leaves above this RMS (in sigmas) is left out, and refitted
 MAX_END_BRIDGE_WIDTHS = 1.0  # an end hidden over more than this many arm widths is a guess, not a measurement
 # The fit's covariance overstates the error of a well-seen arm (typically 3-15 mm at the tip, where
 # the error is 1-5 mm) but grows to 40-110 mm where an occluder hides the tip: only that is refused.
