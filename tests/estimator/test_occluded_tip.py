@@ -52,9 +52,11 @@ def _estimate(shape: str, lab: Lab):
     return result, (score_against_backbone(result.points, scene.gt_points) if result.valid else None)
 
 
-def test_an_outline_the_fitted_end_cannot_explain_does_not_measure_the_tip():
+def test_a_cable_close_beside_the_tip_does_not_leave_a_confident_wrong_tip():
     """Towards the camera, the cable 10 mm beside the axis: the tip came back valid and measured while
-    79 mm off (its outline half the cable's edge), before the outline's residuals were checked."""
+    79 mm off (its outline half the cable's edge). Either check refuses it now: the stretch of
+    silhouette the tube does not follow (both lines of the left image), or the outline it cannot
+    explain; the test fails only with both off."""
     points, _ = standard_shapes()["towards_camera"]
     result, score = _estimate("towards_camera", _along_the_tip(points, 1.0, 0.010))
     assert not result.valid or score["max_mm"] <= 10.0, (result.reason, score and score["max_mm"])
