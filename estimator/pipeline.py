@@ -13,6 +13,7 @@ geometry.
 
 from __future__ import annotations
 
+import copy
 import math
 import threading
 import time
@@ -197,6 +198,7 @@ class CenterlineEstimator:
         self._colour.reset()
         self._base.reset()
         self._warm_fit = None
+        self._moving_fast = False  # the last frame's tube needed its second start
         self._radius = self._radius_info = None
         self._radius_frames = 0
 
@@ -390,17 +392,32 @@ class CenterlineEstimator:
         floor (warm light), its saturation floor rises to the arm's dye.
         """
         cfg = self.config
-        coarse = {side: cv2.remap(images[side], *self._coarse_maps[side], cv2.INTER_NEAREST) for side in SIDES}
-        hsv = {side: cv2.cvtColor(coarse[side], cv2.COLOR_BGR2HSV) for side in SIDES}
         min_area = max(cfg.min_area_px // self._scale**2, 2)
 
-        def gates(low):
-            return {side: remove_small_regions(
-                _open(self._colour.apply(hsv[side], hsv_in_range(hsv[side], low, cfg.hsv_high))), min_area)
-                for side in SIDES}
+        def gated(hsv_, low):
+            return remove_small_regions(_open(self._colour.apply(hsv_, hsv_in_range(hsv_, low, cfg.hsv_high))),
+                                        min_area)
 
-        gate = gates(self._gate_low)
-        keep = self._keep_tracked(gate)
+        def one_side(side):  # the coarse image, its colour gate and the tracked arm's part of it
+            hsv_ = cv2.cvtColor(cv2.remap(images[side], *self._coarse_maps[side], cv2.INTER_NEAREST),
+                                cv2.COLOR_BGR2HSV)
+            gate_ = gated(hsv_, self._gate_low)
+            return hsv_, gate_, self._keep_tracked_side(side, gate_)
+
+        right = _beside(one_side, "right")
+        try:
+            left = one_side("left")
+        finally:
+            right = right.result() if right is not None else one_side("right")  # always wait: shared state
+        per_side = {"left": left, "right": right}
+        hsv = {side: per_side[side][0] for side in SIDES}
+        gate = {side: per_side[side][1] for side in SIDES}
+        tracked = [per_side[side][2] for side in SIDES]
+        keep = None if any(k is None for k in tracked) else dict(zip(SIDES, tracked, strict=True))
+
+        def gates(low):
+            return {side: gated(hsv[side], low) for side in SIDES}
+
         if keep is None:
             geometry = TubeGeometry(self._rect.focal_px / self._scale, self._rect.baseline_m, cfg.arm_radius_m,
                                     cfg.arm_length_m,
@@ -479,33 +496,30 @@ class CenterlineEstimator:
             near = _corridor_mask(mask.shape, curve, 2.0 * s.width_px)
             self._colour.update(hsv, gate, interior, cv2.bitwise_not(near))
 
-    def _keep_tracked(self, gate: dict[str, np.ndarray]) -> dict[str, np.ndarray] | None:
-        """The arm's coarse pixels near the previous frame's centerline, or None when that does not
-        hold the whole arm (it moved too far, or there is no previous frame)."""
-        if any(self._warm[side] is None for side in SIDES) or len(self._track) < 2:
+    def _keep_tracked_side(self, side: str, gate: np.ndarray) -> np.ndarray | None:
+        """The arm's coarse pixels near the previous frame's centerline in one image, or None when
+        that does not hold the whole arm (it moved too far, or there is no previous frame)."""
+        if any(self._warm[s] is None for s in SIDES) or len(self._track) < 2:
             return None
-        keep = {}
-        for side in SIDES:
-            width, area = self._track[side]
-            curve = self._warm[side] / self._scale
-            # Half the tube's width plus how far it may move in a frame: a distractor the arm touches
-            # is cut off at the corridor's edge.
-            reach = 0.5 * width + max(0.5 * width, 3.0)
-            kept, cut = keep_in_corridor(gate[side], _extended(curve, width), reach, reach, with_cut=True)
-            if np.count_nonzero(kept) < 0.8 * area:
+        width, area = self._track[side]
+        curve = self._warm[side] / self._scale
+        # Half the tube's width plus how far it may move in a frame: a distractor the arm touches
+        # is cut off at the corridor's edge.
+        reach = 0.5 * width + max(0.5 * width, 3.0)
+        kept, cut = keep_in_corridor(gate, _extended(curve, width), reach, reach, with_cut=True)
+        if np.count_nonzero(kept) < 0.8 * area:
+            return None
+        cut_px = np.count_nonzero(cut)
+        if cut_px > MAX_CORRIDOR_CUT * np.count_nonzero(kept):
+            return None
+        if cut_px:
+            # Arm-coloured pixels cut off next to an end: the tip (or the arm) swung out of the corridor.
+            ends = np.zeros_like(cut)
+            for end in (curve[0], curve[-1]):
+                cv2.circle(ends, (int(round(end[0])), int(round(end[1]))), int(round(2.5 * width)), 255, -1)
+            if np.count_nonzero(cv2.bitwise_and(cut, ends)) > 0.25 * width * width:
                 return None
-            cut_px = np.count_nonzero(cut)
-            if cut_px > MAX_CORRIDOR_CUT * np.count_nonzero(kept):
-                return None
-            if cut_px:
-                # Arm-coloured pixels cut off next to an end: the tip (or the arm) swung out of the corridor.
-                ends = np.zeros_like(cut)
-                for end in (curve[0], curve[-1]):
-                    cv2.circle(ends, (int(round(end[0])), int(round(end[1]))), int(round(2.5 * width)), 255, -1)
-                if np.count_nonzero(cv2.bitwise_and(cut, ends)) > 0.25 * width * width:
-                    return None
-            keep[side] = kept
-        return keep
+        return kept
 
     def _orient_right_like_left(self, sides: dict[str, _Side]) -> None:
         """Make the right chain start at the same end as the left one (same rows after rectification)."""
@@ -659,13 +673,27 @@ class CenterlineEstimator:
             return fit_tube(edges_, ends, dense, self._radius, sigma, focal_px=f, baseline_m=self._rect.baseline_m,
                             base_prior=self._base.prior, initial_control=start, tip_outline=tip_outline)
 
+        second = None
+        if warm_control is None and self._warm_fit is not None and self._moving_fast:
+            # The arm moved far at the last frame, so the second start (below) will likely be needed:
+            # it runs on the idle second thread beside the first, on copies of everything it reads.
+            # Whether it is used is decided as without it, so the result is the same either way.
+            second = _beside(fit_tube, edges, copy.deepcopy(ends), dense, self._radius.copy(), sigma.copy(),
+                                focal_px=f, baseline_m=self._rect.baseline_m,
+                                base_prior=copy.deepcopy(self._base.prior),
+                                initial_control=self._warm_fit.control.copy(),
+                                tip_outline={k: v.copy() for k, v in tip_outline.items()})
         fit = fit_from(warm_control, edges)
-        if warm_control is None and self._warm_fit is not None and self._moved_from_last(fit) > SECOND_START_M:
+        self._moving_fast = (warm_control is None and self._warm_fit is not None
+                             and self._moved_from_last(fit) > SECOND_START_M)
+        if second is not None and not self._moving_fast:
+            second.cancel()
+        if self._moving_fast:
             # A second start from the previous frame's tube: the fit can settle where a bend near the
             # tip trades depth for shape (late ramp, lab: the tip 20 mm off in depth at a higher cost
             # than the tube near the truth). Only where the tube moved far from the last frame's
             # (tracking slowly, both starts end alike). The lower cost wins.
-            other = fit_from(self._warm_fit.control, edges)
+            other = second.result() if second is not None else fit_from(self._warm_fit.control, edges)
             if other is not None and (fit is None or other.cost < fit.cost):
                 fit = other
         if fit is None:
@@ -829,6 +857,11 @@ def _worker() -> ThreadPoolExecutor:
         if _WORKER is None:
             _WORKER = ThreadPoolExecutor(max_workers=1, thread_name_prefix="estimator-right")
         return _WORKER
+
+
+def _beside(function, *args, **kwargs):
+    """``function(*args, **kwargs)`` started on the second thread (a future), or None without one."""
+    return _worker().submit(function, *args, **kwargs) if _SECOND_THREAD else None
 
 
 @contextmanager

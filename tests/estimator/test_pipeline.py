@@ -86,15 +86,31 @@ def test_reset_forgets_the_previous_frame(bending_sequence):
 
 
 @pytest.mark.parametrize("mode", ["default", "paper"])
-def test_one_thread_or_two_give_the_same_estimates(bending_sequence, mode):
-    """A study's worker processes both images on its one thread (estimator.use_second_thread(False))."""
+def test_one_thread_or_two_give_the_same_estimates(bending_sequence, mode, monkeypatch):
+    """A study's worker processes both images on its one thread (estimator.use_second_thread(False)).
+
+    With two, the second thread also takes the right image's coarse search and, when the arm moved
+    far at the last frame, the tube's second start beside its first: that must change nothing.
+    """
     import estimator
+    import estimator.pipeline as pipeline
+
+    started = []
+    beside = pipeline._beside
+
+    def spy(function, *args, **kwargs):
+        started.append(function.__name__)
+        return beside(function, *args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "_beside", spy)
 
     def run():
         est = CenterlineEstimator(bending_sequence[0].calibration, EstimatorConfig(mode=mode))
         return [est.estimate(f.left, f.right) for f in bending_sequence[:12]]
 
     two = run()
+    if mode == "default":
+        assert "one_side" in started and "fit_tube" in started, started  # both paths were taken
     estimator.use_second_thread(False)
     try:
         one = run()
