@@ -81,11 +81,8 @@ MAX_POINT_STD_M = 0.04
 WARM_START_TUBE = False
 # A tip further than this from the last frame's: fit again from the last tube, keep the lower cost.
 SECOND_START_M = 0.003
-# Chord passes of the 2D refinement: the second, with normals from the first, straightens the chords
-# that nodes lagging a fast swing leave oblique near the tip. One pass with a second one only where
-# under 90 % of its chords were clean ran both on nearly every frame (the ends, the baseplates and
-# the chords beside them leave 70-86 % clean on the twin), at the cost of the first pass twice.
-REFINE_PASSES = 2
+MIN_CLEAN_CHORDS = 0.9  # below this share of clean chords after one refinement pass, a second one runs
+REFINE_PASSES = 1  # chord passes of the 2D refinement (the tube fit does the sub-pixel work since)
 MAX_CORRIDOR_CUT = 0.1  # share of the arm-coloured pixels touching the corridor that it may cut away
 MAX_UNCOVERED = 0.01  # share of arm samples a warm-started chain may leave further than a width from it
 FOCUSED_STEP_PX = 2.0  # an edge's step (its 20-80 % rise) up to this wide counts as focused
@@ -358,7 +355,13 @@ class CenterlineEstimator:
         edges = None
         if cfg.medial_refinement:
             with _timed(timings, "refine"):
-                curve = refine_centerline(mask, nodes, extend_ends=cfg.extend_ends, iterations=REFINE_PASSES)
+                # The SOM's chain is close to the axis; the baselines' zig-zag needs a second pass.
+                passes = REFINE_PASSES if cfg.centerline == "som" else 2
+                curve = refine_centerline(mask, nodes, extend_ends=cfg.extend_ends, iterations=passes)
+                if passes < 2 and curve is not None and curve.valid.mean() < MIN_CLEAN_CHORDS:
+                    # Nodes that lag a fast swing leave the chords oblique near the tip: a second pass,
+                    # with normals from the first, straightens them.
+                    curve = refine_centerline(mask, nodes, extend_ends=cfg.extend_ends, iterations=2)
                 if curve is None:
                     raise _NoArmError(f"the {side} centerline does not follow the silhouette")
                 width = 2.0 * float(np.nanmedian(curve.half_width_px))
