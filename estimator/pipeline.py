@@ -17,7 +17,7 @@ import copy
 import math
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, wait
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
@@ -186,6 +186,7 @@ class CenterlineEstimator:
         self._radius_info: np.ndarray | None = None
         self._last_fit: TubeFit | None = None
         self._warm_fit: TubeFit | None = None  # the last trusted frame's tube
+        self._moving_fast = False  # the last frame's tube needed its second start
         self._radius_frames = 0
         self._tube_extras: tuple | None = None
         self._base = MountLearner()
@@ -404,12 +405,13 @@ class CenterlineEstimator:
             gate_ = gated(hsv_, self._gate_low)
             return hsv_, gate_, self._keep_tracked_side(side, gate_)
 
-        right = _beside(one_side, "right")
+        future = _beside(one_side, "right")
         try:
             left = one_side("left")
         finally:
-            right = right.result() if right is not None else one_side("right")  # always wait: shared state
-        per_side = {"left": left, "right": right}
+            if future is not None:
+                wait([future])  # always, even when the left one failed: the worker reads shared state
+        per_side = {"left": left, "right": future.result() if future is not None else one_side("right")}
         hsv = {side: per_side[side][0] for side in SIDES}
         gate = {side: per_side[side][1] for side in SIDES}
         tracked = [per_side[side][2] for side in SIDES]
