@@ -19,6 +19,7 @@ COMPENSATIONS = ("none", "nearest", "nearest_image", "windowed")
 _PRESETS = {
     "paper": {
         "roi": False,
+        "close_ksize": 0,  # "remove isolated pixels": an opening; no closing (see the README's table)
         "som_input": "contour",
         "som_schedule": "online",
         "som_refine_iterations": 0,
@@ -33,6 +34,7 @@ _PRESETS = {
     },
     "default": {
         "roi": True,
+        "close_ksize": 5,
         "som_input": "mask",
         "som_schedule": "batch",
         "som_refine_iterations": 6,
@@ -62,7 +64,10 @@ class EstimatorConfig:
             segments an orange arm; if ``hsv_low[0] > hsv_high[0]`` the hue range wraps through 0.
         median_ksize: median filter aperture (odd).
         open_ksize, close_ksize: morphological opening (removes isolated pixels) and closing
-            (fills small holes) kernel sizes; 0 disables.
+            (fills small holes) kernel sizes; 0 disables. The paper preset does not close: a
+            closing about as wide as a dark connector between two sections bridges it in one view
+            and not in the other, and the two contours, traced differently, give the SOMs
+            different biases.
         canny_low, canny_high: Canny thresholds applied to the binary mask.
         contour_step: equal-interval downsampling of the contour (keep every k-th point).
         min_area_px: connected regions smaller than this are noise, not arm.
@@ -138,7 +143,7 @@ class EstimatorConfig:
     hsv_high: tuple[int, int, int] = (25, 255, 255)
     median_ksize: int = 5
     open_ksize: int = 3
-    close_ksize: int = 5
+    close_ksize: int | None = None
     canny_low: int = 50
     canny_high: int = 150
     contour_step: int = 4
