@@ -77,15 +77,18 @@ def render_times(config: TwinConfig, frames: int) -> dict[str, list[float]]:
     return times
 
 
-def preset_grab_times(config: TwinConfig, frames: int) -> dict[str, list[float]]:
-    """Wall times (s) of ``camera.grab()`` per scene preset, the arm moving, presets interleaved."""
+def preset_grab_times(config: TwinConfig, frames: int, presets: list[str] | None = None) -> dict[str, list[float]]:
+    """Wall times (s) of ``camera.grab()`` per scene preset (default: all; "" = the config's own scene,
+    for checkouts that know no presets), the arm moving, presets interleaved."""
     import dataclasses
 
     from twin import Twin
-    from twin.scene import preset_names
 
-    presets = ["clean"] + [name for name in preset_names(config.scene_file) if name != "clean"]
-    twins = {name: Twin(dataclasses.replace(config, scene_preset=name)) for name in presets}
+    if presets is None:
+        from twin.scene import preset_names
+
+        presets = ["clean"] + [name for name in preset_names(config.scene_file) if name != "clean"]
+    twins = {name: Twin(dataclasses.replace(config, scene_preset=name) if name else config) for name in presets}
     times: dict[str, list[float]] = {name: [] for name in presets}
     try:
         for twin in twins.values():
@@ -104,34 +107,18 @@ def preset_grab_times(config: TwinConfig, frames: int) -> dict[str, list[float]]
     return times
 
 
-# Run in a child process with a checkout first on sys.path: a camera grab's median wall time (ms)
-# per preset ("" = the checkout's default scene; older checkouts know no presets).
+# Run in a child process: this file's preset_grab_times on the twin of another checkout.
 _CHILD = """
-import dataclasses, json, os, statistics, sys, time
+import json, os, sys
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-sys.path.insert(0, sys.argv[1])
+checkout, here, frames, presets = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4:]
+sys.path[:0] = [checkout, here]
 import twin
-from twin import Twin
+if not twin.__file__.startswith(checkout):
+    raise SystemExit(f"twin imported from {twin.__file__}, not from {checkout}")
+import twin_speed
 from twin.twin import DEFAULT_CONFIG, TwinConfig
-if not twin.__file__.startswith(sys.argv[1]):
-    raise SystemExit(f"twin imported from {twin.__file__}, not from {sys.argv[1]}")
-frames, presets = int(sys.argv[2]), sys.argv[3:]
-config = TwinConfig.load(DEFAULT_CONFIG)
-twins = {p: Twin(dataclasses.replace(config, scene_preset=p) if p else config) for p in presets}
-times = {p: [] for p in presets}
-for t in twins.values():
-    t.valves.set_pressures({"s1_a": 1.2, "s2_a": 1.5, "s3": 1.0})
-    t.advance(1.5)
-    t.camera.grab()
-for _ in range(frames):
-    for p, t in twins.items():
-        t.advance(0.084)
-        start = time.perf_counter()
-        t.camera.grab()
-        times[p].append(time.perf_counter() - start)
-for t in twins.values():
-    t.close()
-print(json.dumps(times))
+print(json.dumps(twin_speed.preset_grab_times(TwinConfig.load(DEFAULT_CONFIG), frames, presets)))
 """
 
 
@@ -140,7 +127,8 @@ def grab_times_of(checkout: Path, presets: list[str], frames: int) -> dict[str, 
     import json
     import subprocess
 
-    done = subprocess.run([sys.executable, "-c", _CHILD, str(checkout), str(frames), *presets],
+    done = subprocess.run([sys.executable, "-c", _CHILD, str(checkout), str(Path(__file__).resolve().parent),
+                           str(frames), *presets],
                           capture_output=True, text=True, check=False)
     if done.returncode != 0:
         raise SystemExit(f"timing the twin in {checkout} failed:\n{done.stderr[-2000:]}")
