@@ -107,7 +107,9 @@ def preset_grab_times(config: TwinConfig, frames: int, presets: list[str] | None
     return times
 
 
-# Run in a child process: this file's preset_grab_times on the twin of another checkout.
+# Run in a child process: this file's preset_grab_times on the twin of another checkout. The child puts
+# that checkout first on its own sys.path on purpose (an editable install's finder outranks
+# PYTHONPATH); this script's own process imports the installed packages only.
 _CHILD = """
 import json, os, sys
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
