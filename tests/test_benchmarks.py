@@ -33,3 +33,17 @@ def test_no_script_shadows_a_package_or_patches_the_import_path():
         calls = [node for node in ast.walk(tree) if isinstance(node, ast.Attribute) and node.attr == "path"
                  and isinstance(node.value, ast.Name) and node.value.id == "sys"]
         assert not calls, f"{script.name} patches sys.path"
+
+
+def test_twin_speed_times_another_checkout_in_a_child_process():
+    """``twin_speed.py --baseline DIR`` times DIR's twin in a child process (here: this checkout's own)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("twin_speed_under_test", REPO / "benchmarks" / "twin_speed.py")
+    twin_speed = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(twin_speed)
+    times = twin_speed.grab_times_of(REPO, ["", "lab"], 2)
+    assert set(times) == {"", "lab"}
+    assert all(len(v) == 2 and all(t > 0 for t in v) for v in times.values())
+    with pytest.raises(SystemExit, match="failed"):
+        twin_speed.grab_times_of(REPO / "no-such-checkout", [""], 1)
