@@ -33,7 +33,7 @@ from estimator.correspondence import MIN_SINE, compensate_nodes, match_rows
 from estimator.edges import subpixel_edges, subpixel_edges_and_steps
 from estimator.mount import MountLearner
 from estimator.profile import BASE_RAMP_WIDTHS, BASE_SKIP_WIDTHS, base_ramp, measured_radius_m, with_width_cue
-from estimator.refinement import Centerline2D, edge_distance, refine_centerline
+from estimator.refinement import Centerline2D, edge_distance, refinement_passes
 from estimator.segmentation import (
     bounding_box,
     contour_points,
@@ -358,11 +358,13 @@ class CenterlineEstimator:
             with _timed(timings, "refine"):
                 # The SOM's chain is close to the axis; the baselines' zig-zag needs a second pass.
                 passes = REFINE_PASSES if cfg.centerline == "som" else 2
-                curve = refine_centerline(mask, nodes, extend_ends=cfg.extend_ends, iterations=passes)
+                refined = refinement_passes(mask, nodes, extend_ends=cfg.extend_ends)
+                for _ in range(passes):
+                    curve = next(refined, None)
                 if passes < 2 and curve is not None and curve.valid.mean() < MIN_CLEAN_CHORDS:
                     # Nodes that lag a fast swing leave the chords oblique near the tip: a second pass,
                     # with normals from the first, straightens them.
-                    curve = refine_centerline(mask, nodes, extend_ends=cfg.extend_ends, iterations=2)
+                    curve = next(refined, None)
                 if curve is None:
                     raise _NoArmError(f"the {side} centerline does not follow the silhouette")
                 width = 2.0 * float(np.nanmedian(curve.half_width_px))

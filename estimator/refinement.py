@@ -165,32 +165,51 @@ def refine_centerline(mask: np.ndarray, nodes: np.ndarray, *, iterations: int = 
     Returns:
         The refined centerline, or None when too few chords cross the silhouette.
     """
+    passes = refinement_passes(mask, nodes, extend_ends=extend_ends)
+    curve = None
+    for _ in range(max(iterations, 1)):
+        curve = next(passes, None)
+    return curve
+
+
+def refinement_passes(mask: np.ndarray, nodes: np.ndarray, *, extend_ends: bool = True):
+    """``refine_centerline`` one pass at a time: the centerline after each chord-midpoint pass, so
+    that a caller can decide after a pass whether another one is needed without starting over.
+    Yields None, and stops, where a pass finds too few chords."""
     mask01 = (mask > 0).astype(np.float32)
     points, tangent = densify(nodes)
-    half = np.full(len(points), np.nan)
-    ok = np.zeros(len(points), dtype=bool)
     max_half = 0.5 * max(mask.shape)  # first pass: search as far as the largest plausible tube
-    for _ in range(iterations):
+    while True:
         normals = np.column_stack([-tangent[:, 1], tangent[:, 0]])
         mids, half, ok = _chords(mask01, points, normals, max_half, 0.5)
         if ok.sum() < 6:
-            return None
+            yield None
+            return
         arc = _arc(points)
         ok &= _full_width(arc, half, ok)
         if ok.sum() < 6:
-            return None
+            yield None
+            return
         max_half = 2.0 * float(np.median(half[ok]))
         before = points
         try:
             points, tangent = _fit(arc[ok], mids[ok], np.ones(ok.sum()), arc)
         except ValueError:  # too few chords for the spline's knots (scipy's Schoenberg-Whitney check)
-            return None
+            yield None
+            return
         if not _follows(points, before, ok, mids, float(np.median(half[ok]))):
-            return None  # nodes too disordered for a curve through them (a baseline's zig-zag)
+            yield None  # nodes too disordered for a curve through them (a baseline's zig-zag)
+            return
         # Keep only the stretch between the outermost supported samples; ends are found next.
         first, last = np.flatnonzero(ok)[[0, -1]]
         points, tangent, ok, half = (points[first:last + 1], tangent[first:last + 1], ok[first:last + 1],
                                      half[first:last + 1])
+        yield _finished(mask01, points, tangent, ok, half, extend_ends)
+
+
+def _finished(mask01: np.ndarray, points: np.ndarray, tangent: np.ndarray, ok: np.ndarray, half: np.ndarray,
+              extend_ends: bool) -> Centerline2D | None:
+    """The centerline after a pass: support withdrawn beside gaps, the ends extended to the silhouette's."""
     typical = float(np.median(half[ok]))
     ok = _away_from_gaps(ok, _arc(points), typical)
     if ok.sum() < 6:

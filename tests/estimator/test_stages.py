@@ -6,7 +6,7 @@ import pytest
 
 from estimator import EstimatorConfig
 from estimator.correspondence import compensate_nodes, match_rows, row_crossings
-from estimator.refinement import refine_centerline
+from estimator.refinement import refine_centerline, refinement_passes
 from estimator.segmentation import arm_mask, contour_points, has_holes, hsv_mask, mask_points
 from estimator.skeleton import ordered_skeleton_path, resample_polyline, thin, thinning_centerline
 from estimator.smoothing import polynomial_smooth, robust_spline_profile
@@ -115,6 +115,32 @@ def test_refinement_centres_on_the_medial_axis_and_reaches_the_ends():
     # the drawn tube ends in round caps of that radius beyond the centre line's ends
     assert np.linalg.norm(curve.points[-1] - centre[-1]) == pytest.approx(half, abs=2.0)
     assert np.linalg.norm(curve.points[0] - centre[0]) == pytest.approx(half, abs=2.0)
+
+
+def test_refinement_continues_pass_by_pass_as_if_started_over():
+    """The pipeline decides after one pass whether a second is needed and goes on from there: each
+    pass must give what a refinement started over with that many passes gives, or the estimates
+    would depend on how the decision was made."""
+    centre = arc_centre()
+    mask = tube_mask(centre, 16)
+    nodes = resample_polyline(centre, 20) + np.random.default_rng(1).normal(0, 4, (20, 2))
+    passes = refinement_passes(mask, nodes)
+    for count in (1, 2, 3):
+        stepwise, fresh = next(passes), refine_centerline(mask, nodes, iterations=count)
+        for name in ("points", "valid", "half_width_px", "arc_px"):
+            np.testing.assert_array_equal(getattr(stepwise, name), getattr(fresh, name))
+    # the passes do move the curve (or the comparison above would hold trivially)
+    first, third = refine_centerline(mask, nodes, iterations=1), refine_centerline(mask, nodes, iterations=3)
+    assert len(first.points) != len(third.points) or not np.array_equal(first.points, third.points)
+
+
+def test_a_failed_pass_ends_the_passes():
+    """Too few chords: the pass yields None and no further pass follows."""
+    mask = np.zeros((200, 200), np.uint8)
+    mask[90:110, 90:110] = 255
+    passes = refinement_passes(mask, np.column_stack([np.linspace(10, 190, 8), np.full(8, 20.0)]))
+    assert next(passes) is None
+    assert next(passes, "stopped") == "stopped"
 
 
 def test_a_ragged_silhouette_keeps_its_chords():
