@@ -122,6 +122,8 @@ class TubeFit:
         direction, metres. Sliding along the axis is left out: it moves no point off the curve."""
         count = len(self.control)
         m = len(us)
+        if not np.all(np.isfinite(self.covariance)):
+            return np.full(m, math.inf)  # a fit that knows nothing (no edge within a pixel)
         S = np.empty((m, 3, 3))
         tangents = np.empty((m, 3))
         for i, u in enumerate(us):
@@ -750,8 +752,12 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
         covariance = np.linalg.inv(A + 1e-12 * np.eye(npar))
     except np.linalg.LinAlgError:
         return None
-    # Scale by the observed noise when it exceeds the assumed one (never below it).
-    covariance *= max(1.0, (rms / EDGE_SIGMA_PX) ** 2)
+    # Scale by the observed noise when it exceeds the assumed one (never below it). With no edge
+    # within a pixel there is no noise to scale by: nothing about the tube is known.
+    if math.isfinite(rms):
+        covariance *= max(1.0, (rms / EDGE_SIGMA_PX) ** 2)
+    else:
+        covariance = np.full_like(covariance, math.inf)
     radius_std = np.sqrt(np.maximum(np.diag(covariance)[3 * count:], 0.0))
     at_tip = np.zeros(len(kinds), bool)
     at_tip[n_edges:] = np.array(end_us) == 1.0

@@ -11,6 +11,8 @@ camera B to the right), these are the exact sub-pixel edges the fit is meant to 
 """
 
 import dataclasses
+import math
+import warnings
 
 import numpy as np
 import pytest
@@ -343,6 +345,19 @@ def test_point_std_leaves_out_sliding_along_the_axis(bent_tube):
     assert np.min(np.array(full) / across) > 10.0
     # and the points themselves are where the std says, across the axis
     assert np.percentile(distances_mm(result, axis, 200)[20:180], 95) <= 3.0 * across.max() * 1e3
+
+
+def test_a_fit_with_no_edge_within_a_pixel_knows_nothing(bent_tube):
+    """Started three times too thick and not allowed to move, no edge lies within a pixel of the tube: its RMS is
+    infinite and so is every standard deviation (not NaN, and without numpy's warnings, which a
+    study printed among its results)."""
+    axis, _ = bent_tube
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        result = fit(tube_edges(axis, 0.022), axis, axis, radius=0.066, ends=NO_ENDS, iterations=0)
+    assert result.inliers == 0.0 and result.rms_px == math.inf
+    assert np.all(np.isinf(result.point_std_m(np.linspace(0.0, 1.0, 5))))
+    assert np.all(np.isinf(result.radius_std))
 
 
 def _fused(template, frames, std_m: float, noise_m: float = 0.0, seed: int = 3):
