@@ -160,7 +160,8 @@ def check_target(target: ViewTarget) -> None:
 
     Raises:
         ViewError: rerun-sdk missing (with how to install it), a native viewer without a display (with
-            what to use instead), or a ``.rrd`` path whose folder does not exist or that is a folder.
+            what to use instead), or a ``.rrd`` path whose folder does not exist, that is a folder, or
+            that cannot be written.
     """
     require_rerun()
     if target.viewer == "native" and not has_display():
@@ -174,6 +175,14 @@ def check_target(target: ViewTarget) -> None:
             raise ViewError(f"--rrd {rrd}: is a folder; name the recording file to write (e.g. {rrd / 'run.rrd'})")
         if not rrd.parent.resolve().is_dir():
             raise ViewError(f"--rrd {rrd}: the folder {rrd.parent} does not exist")
+        existed = rrd.exists()
+        try:  # a folder that exists may still refuse a new file (read-only, no permission, /proc)
+            with open(rrd, "ab"):
+                pass
+            if not existed:
+                rrd.unlink()
+        except OSError as e:
+            raise ViewError(f"--rrd {rrd}: cannot be written ({e.strerror or e})") from e
 
 
 def blueprint():
@@ -234,7 +243,10 @@ class LiveView:
         self._rec = rr.RecordingStream(APPLICATION_ID, batcher_config=batching)
         sinks = []
         if target.rrd is not None:
-            sinks.append(rr.FileSink(str(target.rrd)))
+            try:
+                sinks.append(rr.FileSink(str(target.rrd)))
+            except RuntimeError as e:  # Rerun's own refusal, should the file go between the check and here
+                raise ViewError(f"--rrd {target.rrd}: {e}") from e
         if target.viewer == "native":
             sinks.append(self._spawn_viewer())
         elif target.viewer == "web":

@@ -258,6 +258,13 @@ def test_view_of_a_run_without_a_display_says_what_to_use(twin_run, rerun_env, c
     assert "needs a display" in err and "--view web" in err
 
 
+def test_view_to_a_file_that_cannot_be_written_says_so_without_a_traceback(twin_run, rerun_env, capsys):
+    assert view_command(SimpleNamespace(run_dir=str(twin_run.folder), rrd="/proc/softarm-view-test.rrd",
+                                        web=False)) == 1
+    err = capsys.readouterr().err
+    assert "--rrd /proc/softarm-view-test.rrd: cannot be written" in err and "Traceback" not in err
+
+
 def test_without_rerun_sdk_the_view_says_how_to_install_it(tmp_path, rerun_env):
     blocked = ("import sys; sys.modules['rerun'] = None; from bench.cli import main; "
                f"sys.exit(main(['run', '--rrd', 'x.rrd', '--frames', '2', '--out', {str(tmp_path / 'run')!r}]))")
@@ -276,6 +283,11 @@ def test_a_bad_rrd_path_is_refused_before_anything_moves(tmp_path, capsys):
         check_target(ViewTarget(rrd=tmp_path / "missing" / "x.rrd"))
     with pytest.raises(ViewError, match="is a folder"):
         check_target(ViewTarget(rrd=tmp_path))
+    # a folder that is there but takes no new file (as root, only a special file system refuses)
+    with pytest.raises(ViewError, match="cannot be written"):
+        check_target(ViewTarget(rrd=Path("/proc/softarm-view-test.rrd")))
+    check_target(ViewTarget(rrd=tmp_path / "ok.rrd"))  # a writable path passes and is not left behind
+    assert not (tmp_path / "ok.rrd").exists()
     args = SimpleNamespace(config=None, backend=None, mode=None, compare=False, frames=2, out=str(tmp_path / "run"),
                            no_report=True, yes=False, view=None, rrd=str(tmp_path / "missing" / "x.rrd"))
     assert run_command(args) == 2
