@@ -559,13 +559,16 @@ def record_run(run, target: ViewTarget, *, progress: bool = False) -> LiveView:
 
 def view_command(args) -> int:
     """Entry point of ``softarm view RUN [--rrd FILE] [--web]``: 0 done, 1 the view failed, 2 RUN is not a run."""
-    from bench.recording import EXIT_FAILED, EXIT_NOT_A_RUN, EXIT_OK, RunFolderError, load_run
+    from bench.recording import EXIT_FAILED, EXIT_NOT_A_RUN, EXIT_OK, RunFolderError, load_run, unreadable_frames_note
 
     try:
         run = load_run(Path(args.run_dir))
     except RunFolderError as e:
         print(f"softarm view: {e}", file=sys.stderr)
         return EXIT_NOT_A_RUN
+    problems = run.image_problems()
+    if problems:  # those frames are recorded without their images
+        print(f"softarm view: note: recorded without images: {unreadable_frames_note(problems)}", file=sys.stderr)
     rrd = Path(args.rrd) if getattr(args, "rrd", None) else None
     web = bool(getattr(args, "web", False))
     target = ViewTarget(viewer="web" if web else (None if rrd is not None else "native"), rrd=rrd)

@@ -412,6 +412,14 @@ def add_patch(background: np.ndarray, patch: np.ndarray, origin: tuple[int, int]
     return image
 
 
+def unreadable_frames_note(problems: list[str], shown: int = 5) -> str:
+    """How many frames' images cannot be read back, with the first few reasons (``Run.image_problems``):
+    "2 frames whose images cannot be read (frame 5: frames/000005_left.png is missing; ...)"."""
+    more = f"; {len(problems) - shown} more" if len(problems) > shown else ""
+    return (f"{len(problems)} frame{'s' * (len(problems) != 1)} whose images cannot be read "
+            f"({'; '.join(problems[:shown])}{more})")
+
+
 def _write_image(path: Path, image: np.ndarray, ext: str, params: list[int]) -> None:
     ok, data = cv2.imencode(ext, image, params)
     if not ok:
@@ -496,6 +504,24 @@ class Run:
     def report_options(self) -> dict:
         return self.section("bench", "report")
 
+    def image_problem(self, record: FrameRecord) -> str | None:
+        """Why a recorded frame's images cannot be read back ("frame 5: frames/000005_left.png is
+        missing"), or None when its files are all there (or it recorded no images)."""
+        names = list((record.images or {}).values())
+        if record.clean:
+            names += list(record.clean.get("background", {}).values())
+        for name in names:
+            path = self.path / name
+            if not path.is_file():
+                return f"frame {record.index}: {name} is missing"
+            if path.stat().st_size == 0:
+                return f"frame {record.index}: {name} is empty"
+        return None
+
+    def image_problems(self) -> list[str]:
+        """``image_problem`` of every frame that has one, in frame order."""
+        return [problem for record in self.frames if (problem := self.image_problem(record)) is not None]
+
     def image(self, record: FrameRecord, side: str) -> np.ndarray | None:
         """The raw BGR image of one eye of a frame as the estimator saw it, or None when it was not
         recorded (or its file is missing or unreadable).
@@ -510,6 +536,8 @@ class Run:
         if not name:
             return None
         flags = cv2.IMREAD_UNCHANGED if record.clean else cv2.IMREAD_COLOR
+        if not (self.path / name).is_file():
+            return None  # said once for the whole run by image_problems, not by OpenCV for every read
         image = cv2.imread(str(self.path / name), flags)
         if image is None or not record.clean:
             return image
@@ -565,7 +593,8 @@ class Run:
             return None
         key = ("background", name)
         if key not in self._cache:
-            self._cache[key] = cv2.imread(str(self.path / name), cv2.IMREAD_UNCHANGED)
+            path = self.path / name
+            self._cache[key] = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if path.is_file() else None
         return self._cache[key]
 
     def _noise(self, side: str):

@@ -33,6 +33,7 @@ from bench.recording import (
     new_run_folder,
     point_latest,
     summarize_run,
+    unreadable_frames_note,
 )
 from bench.scoring import summary_table
 from estimator import CenterlineEstimator, EstimatorConfig
@@ -65,6 +66,8 @@ def replay_command(args) -> int:
         point_latest(out)
     label = f"replay ({config.mode}, {config.centerline})"
     print(f"replayed {summary['frames']} frames of {run.path} into {out}")
+    if summary.get("skipped"):
+        print(f"softarm replay: left out {unreadable_frames_note(summary['skipped'])}", file=sys.stderr)
     print("recorded:")
     for line in summary_table(run.summary, label=f"recorded ({run.summary.get('mode')})"):
         print("  " + line)
@@ -118,7 +121,7 @@ def replay(run: Run, config: EstimatorConfig, out: Path, *, progress: bool = Fal
                          "estimators": {"main": config.as_dict()}})
     estimator = CenterlineEstimator(calibration, config)
     records: list[FrameRecord] = []
-    skipped = 0
+    skipped: list[str] = []  # frames whose images could not be read back, and why
     bar = None
     if progress:
         from tqdm import tqdm
@@ -129,7 +132,7 @@ def replay(run: Run, config: EstimatorConfig, out: Path, *, progress: bool = Fal
         for original in usable:
             left, right = run.image(original, "left"), run.image(original, "right")
             if left is None or right is None:
-                skipped += 1
+                skipped.append(run.image_problem(original) or f"frame {original.index}: an image file is unreadable")
                 continue
             depth_units, unit = run.depth_units(original)
             capture = Capture(index=original.index, t_s=original.t_s,
@@ -148,7 +151,7 @@ def replay(run: Run, config: EstimatorConfig, out: Path, *, progress: bool = Fal
             bar.close()
         summary = summarize_run(records, {"backend": run.backend, "estimators": {"main": config.as_dict()}},
                                 wall_s=time.perf_counter() - start)
-        summary.update({"replay_of": str(run.path.resolve()), "skipped_frames": skipped,
+        summary.update({"replay_of": str(run.path.resolve()), "skipped_frames": len(skipped), "skipped": skipped,
                         "ground_truth": run.has_ground_truth, "depth_source": run.summary.get("depth_source")})
         writer.finish(summary)
     return summary

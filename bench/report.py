@@ -41,6 +41,7 @@ from bench.recording import (
     Run,
     RunFolderError,
     load_run,
+    unreadable_frames_note,
     write_json,
 )
 from bench.scoring import PAPER, dequantize_depth, invalid_lines, pooled_rmse, summary_table
@@ -138,7 +139,8 @@ def _recorded_report_options(run: Run) -> dict:
 
 
 def _reading_notes(run: Run, limit: int = 5) -> list[str]:
-    """What reading the run folder found wrong: skipped lines of frames.jsonl, a recomputed summary."""
+    """What reading the run folder found wrong: skipped lines of frames.jsonl, a recomputed summary,
+    frames whose image files are gone."""
     notes = []
     if run.skipped:
         shown = "; ".join(str(line) for line in run.skipped[:limit])
@@ -147,6 +149,9 @@ def _reading_notes(run: Run, limit: int = 5) -> list[str]:
                      f"({shown}{more})")
     if run.summary_note and run.complete:
         notes.append(run.summary_note)
+    problems = run.image_problems()
+    if problems:
+        notes.append(f"left out of the images and the video: {unreadable_frames_note(problems, limit)}")
     return notes
 
 

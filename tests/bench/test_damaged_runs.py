@@ -92,6 +92,26 @@ def test_a_summary_that_is_not_an_object_is_recomputed(finished_run, capsys, con
     assert "frames recorded: 10, valid: 9" in text
 
 
+def test_a_missing_image_file_is_named_by_replay_and_report(finished_run, tmp_path, capsys):
+    """The reported case: frame 5's left image deleted, and replay said "replayed 9 frames" without
+    naming it, the report only OpenCV's own warning."""
+    name = load_run(finished_run).frames[5].images["left"]
+    (finished_run / name).unlink()
+    assert load_run(finished_run).image_problems() == [f"frame 5: {name} is missing"]
+    out = tmp_path / "replayed"
+    args = SimpleNamespace(run_dir=str(finished_run), mode=None, centerline=None, out=str(out))
+    assert replay_command(args) == 0
+    err = capsys.readouterr().err
+    assert f"left out 1 frame whose images cannot be read (frame 5: {name} is missing)" in err
+    summary = json.loads((out / SUMMARY_FILE).read_text())
+    assert summary["frames"] == 9 and summary["skipped"] == [f"frame 5: {name} is missing"]
+    assert [f.index for f in load_run(out).frames] == [0, 1, 2, 3, 4, 6, 7, 8, 9]
+    code, text, _ = report(finished_run, capsys)
+    assert code == 0
+    assert f"left out of the images and the video: 1 frame whose images cannot be read (frame 5: {name} is " \
+           "missing)" in text
+
+
 def test_a_config_that_is_not_an_object_is_a_clear_error_for_report_and_replay(finished_run, capsys):
     (finished_run / CONFIG_FILE).write_text("[1, 2, 3]")
     code, _, err = report(finished_run, capsys)
