@@ -179,10 +179,10 @@ def accuracy_command(args) -> int:
         engine = engine_from_args(args)
         twin = TwinConfig.load(config.sim.twin)
         frames = frames_from_args(args, config.experiment.frames, MAX_FRAMES)
+        out = out_folder(args, config, "accuracy")
     except (ConfigError, ValueError) as e:
         print(f"softarm study accuracy: {e}", file=sys.stderr)
         return 2
-    out = out_folder(args, config, "accuracy")
     base = config.estimator_config(mode="default")
     specs = [sequence_spec(config, frames=frames, preset=twin.scene_preset, scene_seed=twin.scene_seed,
                            estimators={"main": base.replace(**changes).as_dict()}, tag=name)

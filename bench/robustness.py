@@ -326,10 +326,10 @@ def robustness_command(args) -> int:
         twin_seed = twin_config(sequence_spec(config, frames=1, preset="clean", scene_seed=0, estimators={})).scene_seed
         conditions = [parse_condition(c, twin_seed) for c in (getattr(args, "conditions", None) or CONDITIONS)]
         frames = frames_from_args(args, DEFAULT_FRAMES, MAX_FRAMES, "frames per condition")
+        out = out_folder(args, config, "robustness")
     except (ConfigError, ValueError) as e:
         print(f"softarm study robustness: {e}", file=sys.stderr)
         return 2
-    out = out_folder(args, config, "robustness")
     print(f"softarm study robustness: {len(conditions)} conditions x {frames} frames on the {engine.name} engine ...",
           flush=True)
 

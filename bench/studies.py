@@ -117,10 +117,10 @@ def study_command(args) -> int:
         config = load_bench_config(getattr(args, "config", None))
         engine = engine_from_args(args)
         n = frames_from_args(args, DEFAULT_FRAMES, MAX_STUDY_FRAMES)
+        out = out_folder(args, config, which)
     except (ConfigError, ValueError) as e:
         print(f"softarm study: {e}", file=sys.stderr)
         return 2
-    out = out_folder(args, config, which)
     progress = not getattr(args, "no_progress", False)
     print(f"softarm study {which}: rendering {n} twin frames along the experiment ...", flush=True)
     start = time.perf_counter()

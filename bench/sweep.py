@@ -348,10 +348,10 @@ def sweep_command(args) -> int:
             if not 1 <= args.frames <= 1000:
                 raise ValueError(f"--frames {args.frames}: expected 1 to 1000 frames per episode")
             grid = dataclasses.replace(grid, frames=int(args.frames))
+        out = out_folder(args, config, "sweep")
     except (ConfigError, ConfigFileError, ValueError) as e:
         print(f"softarm study sweep: {e}", file=sys.stderr)
         return 2
-    out = out_folder(args, config, "sweep")
 
     def work():
         result = sweep_study(config, grid, out, engine, progress=not getattr(args, "no_progress", False))

@@ -147,6 +147,25 @@ def test_a_frames_option_out_of_range_is_refused_not_replaced(tmp_path, capsys, 
     assert not out.exists()
 
 
+@pytest.mark.parametrize("which", ["som", "compare", "robustness", "accuracy"])
+def test_an_out_folder_that_cannot_be_written_is_refused_before_the_study_runs(tmp_path, capsys, which):
+    """The reported case: the robustness study ran its episodes, then said it could not write them."""
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    for out, why in (("/proc/softarm-study", "cannot be written"), (blocker / "study", "is a file, not a folder")):
+        args = SimpleNamespace(which=which, config=None, frames=2, out=str(out), conditions=["clean"],
+                               engine="local", workers=1, ray_address=None)
+        assert study_command(args) == 2
+        said = capsys.readouterr()
+        assert f"--out {out}: " in said.err and why in said.err
+        assert said.out == ""  # nothing started
+    # a folder that can be written is not left behind by the check (the study makes it when it writes)
+    from bench.study_files import writable_folder
+
+    assert writable_folder(tmp_path / "new" / "deeper", "--out") == tmp_path / "new" / "deeper"
+    assert not (tmp_path / "new").exists()
+
+
 def _figures_saved(monkeypatch) -> list:
     import matplotlib
 
