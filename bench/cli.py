@@ -127,8 +127,18 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# study options that only one study takes: option -> (flag, that study)
+_ONE_STUDY_OPTIONS = {"conditions": ("--conditions", "robustness"), "grid": ("--grid", "sweep")}
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command == "study":
+        for key, (flag, owner) in _ONE_STUDY_OPTIONS.items():
+            if getattr(args, key, None) is not None and args.which != owner:
+                # said, not ignored: a study run without the option the user meant to vary misleads
+                parser.error(f"{flag} is an option of the {owner} study; study {args.which} does not take it")
     module_name, function_name = _HANDLERS[args.command]
     module = importlib.import_module(module_name)
     return int(getattr(module, function_name)(args) or 0)

@@ -166,6 +166,20 @@ def test_an_out_folder_that_cannot_be_written_is_refused_before_the_study_runs(t
     assert not (tmp_path / "new").exists()
 
 
+@pytest.mark.parametrize(("argv", "said"), [
+    (["som", "--conditions", "lab"], "--conditions is an option of the robustness study; study som does not take it"),
+    (["sweep", "--grid", "g.toml", "--conditions", "lab"], "--conditions is an option of the robustness study"),
+    (["robustness", "--grid", "g.toml"], "--grid is an option of the sweep study; study robustness does not take it"),
+])
+def test_an_option_of_another_study_is_refused_not_ignored(capsys, argv, said):
+    """The reported case: ``study som --conditions lab`` ran the som study and wrote no trace of lab."""
+    from bench.cli import main
+
+    with pytest.raises(SystemExit) as stop:
+        main(["study", *argv, "--frames", "1"])
+    assert stop.value.code == 2 and said in capsys.readouterr().err
+
+
 def _figures_saved(monkeypatch) -> list:
     import matplotlib
 
