@@ -250,7 +250,7 @@ def run_experiment(config: BenchConfig, options: RunOptions) -> RunOutcome:
         print(f"softarm run: {config.backend} backend, {schedule.describe()}", flush=True)
         devices = make_devices(config)
         try:
-            _check_schedule(schedule, devices.valves)
+            _check_schedule(schedule, devices.valves, config.path)
             check_disk(config, options, schedule, devices.archive.expected_bytes(
                 config.recording, tuple(devices.camera.calibration.image_size), compare=options.compare))
             folder = options.out if options.out is not None else new_run_folder(config.recording.runs_root())
@@ -305,14 +305,15 @@ def _write_report(folder: Path, options: RunOptions, outcome: RunOutcome) -> int
     return outcome.exit_code
 
 
-def _check_schedule(schedule: Schedule, valves) -> None:
-    """Refuse, before anything moves, a schedule naming unknown valves or exceeding their limit."""
+def _check_schedule(schedule: Schedule, valves, source: Path) -> None:
+    """Refuse, before anything moves, a schedule naming unknown valves or exceeding their limit
+    (``source``: the bench config the schedule came from, named in the message)."""
     unknown = [c for c in schedule.channels if c not in valves.channels]
     if unknown:
-        raise ValueError(f"[experiment] channels: {', '.join(unknown)} not among the valves "
+        raise ValueError(f"{source}: [experiment] channels: {', '.join(unknown)} not among the valves "
                          f"({', '.join(valves.channels)})")
     if schedule.max_bar > valves.max_pressure_bar + 1e-9:
-        raise ValueError(f"[experiment] max_bar: {schedule.max_bar:g} bar exceeds the valves' limit of "
+        raise ValueError(f"{source}: [experiment] max_bar: {schedule.max_bar:g} bar exceeds the valves' limit of "
                          f"{valves.max_pressure_bar:g} bar")
 
 

@@ -112,8 +112,9 @@ def test_a_missing_calibration_fails_before_anything_moves(rig_folder, board, ca
 ])
 def test_a_schedule_the_valves_cannot_take_fails_before_anything_moves(rig_folder, board, capsys, edits, message):
     out = rig_folder / "run"
-    assert run_command(run_args(rig_config(rig_folder, board.port, **edits), out)) == 2
-    assert message.replace("\\", "") in capsys.readouterr().err
+    path = rig_config(rig_folder, board.port, **edits)
+    assert run_command(run_args(path, out)) == 2
+    assert f"{path}: " + message.replace("\\", "") in capsys.readouterr().err  # the file, the key, the value
     assert "SET" not in board.commands and board.commands.get("VENT", 0) >= 2  # connected, vented, closed
     assert not out.exists()
 
