@@ -340,41 +340,18 @@ class CenterlineEstimator:
                        else contour_points(mask, cfg.canny_low, cfg.canny_high, cfg.contour_step))
             if len(samples) < 3:
                 raise _NoArmError(f"no arm found in the {side} image: only {len(samples)} arm samples")
-        with _timed(timings, "centerline"):
-            warm = self._warm[side]
-            hint = self._base_hint - offset if (side == "left" and self._base_hint is not None) else None
-            nodes = centerline_nodes(mask, samples, cfg, warm=None if warm is None else warm - offset, base_hint=hint)
-            # A chain started from the last frame may not follow a fast swing to its end: if arm
-            # pixels lie far from it, start this image over from its skeleton.
-            if (warm is not None and cfg.mode == "default" and side in self._track
-                    and _uncovered(samples, nodes, self._track[side][0] * self._scale) > MAX_UNCOVERED):
-                nodes = centerline_nodes(mask, samples, cfg, warm=None, base_hint=hint)
-            if len(nodes) < 3:
-                raise _NoArmError(f"no centerline found in the {side} image")
-        curve = None
-        width = 0.0
+        warm = self._warm[side]
+        try:
+            nodes, curve, width = self._trace(mask, samples, offset, side, warm, timings)
+        except _NoArmError:
+            if warm is None or cfg.mode != "default":
+                raise
+            # The last frame's chain can lead this one astray where the arm moved far since (frames
+            # seconds apart): the chain crosses itself or leaves the silhouette. Started over from
+            # this image alone, the frame is judged as a first frame is.
+            nodes, curve, width = self._trace(mask, samples, offset, side, None, timings)
         edges = None
         if cfg.medial_refinement:
-            with _timed(timings, "refine"):
-                # The SOM's chain is close to the axis; the baselines' zig-zag needs a second pass.
-                passes = REFINE_PASSES if cfg.centerline == "som" else 2
-                refined = refinement_passes(mask, nodes, extend_ends=cfg.extend_ends)
-                for _ in range(passes):
-                    curve = next(refined, None)
-                if passes < 2 and curve is not None and curve.valid.mean() < MIN_CLEAN_CHORDS:
-                    # Nodes that lag a fast swing leave the chords oblique near the tip: a second pass,
-                    # with normals from the first, straightens them.
-                    curve = next(refined, None)
-                if curve is None:
-                    raise _NoArmError(f"the {side} centerline does not follow the silhouette")
-                width = 2.0 * float(np.nanmedian(curve.half_width_px))
-                gap_limit = cfg.max_bridge_widths if cfg.tube_fit else cfg.max_gap_widths
-                if curve.longest_unsupported_px() > gap_limit * width:
-                    raise _NoArmError(f"self-overlap or occlusion in the {side} image: "
-                                 f"{curve.longest_unsupported_px() / width:.1f} arm widths without a clean silhouette")
-                _check_self_approach(curve.points, width, cfg.max_self_approach, side)
-                curve = curve.shifted(offset)
-                nodes = resample_polyline(curve.points, cfg.n_points)
             if cfg.tube_fit:
                 with _timed(timings, "edges"):
                     edges = _silhouette_edges(crop, mask, curve, offset)
@@ -385,6 +362,47 @@ class CenterlineEstimator:
                 _check_self_approach(nodes, width, cfg.max_self_approach, side)
         return _Side(nodes, curve, width, int(np.count_nonzero(mask)), (hsv, gate, mask, offset) if learn else None,
                      crop, offset, edges)
+
+    def _trace(self, mask: np.ndarray, samples: np.ndarray, offset: np.ndarray, side: str,
+               warm: np.ndarray | None, timings: dict) -> tuple[np.ndarray, Centerline2D | None, float]:
+        """The ordered 2D centerline of one image's mask, the SOM started from ``warm`` (the last
+        frame's nodes) or cold: (nodes, the refined curve or None, the arm's width in pixels or 0).
+        Nodes and curve are in rectified image pixels once refined (in the crop's without refinement)."""
+        cfg = self.config
+        with _timed(timings, "centerline"):
+            hint = self._base_hint - offset if (side == "left" and self._base_hint is not None) else None
+            nodes = centerline_nodes(mask, samples, cfg, warm=None if warm is None else warm - offset, base_hint=hint)
+            # A chain started from the last frame may not follow a fast swing to its end: if arm
+            # pixels lie far from it, start this image over from its skeleton.
+            if (warm is not None and cfg.mode == "default" and side in self._track
+                    and _uncovered(samples, nodes, self._track[side][0] * self._scale) > MAX_UNCOVERED):
+                nodes = centerline_nodes(mask, samples, cfg, warm=None, base_hint=hint)
+            if len(nodes) < 3:
+                raise _NoArmError(f"no centerline found in the {side} image")
+        if not cfg.medial_refinement:
+            return nodes, None, 0.0
+        with _timed(timings, "refine"):
+            # The SOM's chain is close to the axis; the baselines' zig-zag needs a second pass.
+            passes = REFINE_PASSES if cfg.centerline == "som" else 2
+            refined = refinement_passes(mask, nodes, extend_ends=cfg.extend_ends)
+            curve = None
+            for _ in range(passes):
+                curve = next(refined, None)
+            if passes < 2 and curve is not None and curve.valid.mean() < MIN_CLEAN_CHORDS:
+                # Nodes that lag a fast swing leave the chords oblique near the tip: a second pass,
+                # with normals from the first, straightens them.
+                curve = next(refined, None)
+            if curve is None:
+                raise _NoArmError(f"the {side} centerline does not follow the silhouette")
+            width = 2.0 * float(np.nanmedian(curve.half_width_px))
+            gap_limit = cfg.max_bridge_widths if cfg.tube_fit else cfg.max_gap_widths
+            if curve.longest_unsupported_px() > gap_limit * width:
+                raise _NoArmError(f"self-overlap or occlusion in the {side} image: "
+                                  f"{curve.longest_unsupported_px() / width:.1f} arm widths without a clean "
+                                  "silhouette")
+            _check_self_approach(curve.points, width, cfg.max_self_approach, side)
+            curve = curve.shifted(offset)
+            return resample_polyline(curve.points, cfg.n_points), curve, width
 
     def _locate(self, images: dict[str, np.ndarray]) -> dict[str, tuple[tuple[int, int, int, int], np.ndarray]]:
         """Where the arm is in each image: a region of interest and the coarse mask of its pixels.

@@ -84,6 +84,16 @@ def test_the_study_writes_one_row_per_condition_and_mode_and_its_record(reduced)
     assert len(frames) == 1 + len(CONDITIONS) * 2 * REDUCED_FRAMES
 
 
+def test_a_frame_far_from_the_last_is_estimated_as_a_first_frame_is(tmp_path):
+    """The reported case: ``--frames 2`` puts the second frame 58 s after the first, and the SOM started
+    from the first frame's chain crossed itself there ("self-overlap"), while the same image estimated
+    cold is valid. A chain the last frame led astray is started over from the image alone."""
+    result = robustness_study(load_bench_config(), [parse_condition("clean", 0)], 2, tmp_path,
+                              EngineConfig("local", 1), progress=False)
+    default = next(r for r in result["rows"] if r["mode"] == "default")
+    assert default["valid"] == 2 and default["false_valid"] == 0, read_results(tmp_path / "frames.csv")
+
+
 def _rows(**changes):
     """A passing study: clean at 1.0 mm, every other condition within its targets."""
     rows = []
