@@ -55,3 +55,7 @@ def test_the_report_reruns_the_variants_and_computes_table_2_the_papers_way(pape
                     "## Table 2 computed the paper's way", "## Paper mode speed (Fig 13)"):
         assert heading in text, heading
     assert "| axis depth |" in text and "| numpy SOM (the paper's speed class) |" in text
+    # eq. (11) is read off the SOM's nodes, the same in every variant: said once, not as a column of equal figures
+    assert compensation["summary"]["nearest"]["misalignment_px"] == compensation["summary"]["none"]["misalignment_px"]
+    assert text.count("Misalignment eq. (11) between the SOM's left and right nodes before compensation") == 1
+    assert "misalignment eq. (11) (px) |" not in text
