@@ -761,6 +761,8 @@ def summarize_run(frames: list[FrameRecord] | list[Mapping], config: Mapping, *,
     main_mode = main.get("mode", "default") if isinstance(main, Mapping) else "default"
     summary = {"backend": config.get("backend"), "mode": main_mode,
                **summarize(frames, wall_s=wall_s)}
+    if isinstance(main, Mapping) and main.get("centerline"):
+        summary["centerline"] = main["centerline"]  # the 2D stage (a replay may swap the mode's own)
     if any(f.paper is not None for f in frames):
         summary["paper"] = summarize(frames, key="paper", wall_s=wall_s)
     return summary

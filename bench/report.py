@@ -603,6 +603,7 @@ def _write_markdown(run: Run, compensation: dict | None, written: Mapping[str, s
     lines = [f"# Run {run.path.name}", ""]
     schedule = run.section("schedule")
     lines.append(f"- backend: **{run.backend}**; estimator mode: **{s.get('mode')}**"
+                 + (f", 2D centerline: **{s['centerline']}**" if s.get("centerline") else "")
                  + (" (paper mode compared on every frame)" if "paper" in s else ""))
     if schedule:
         try:

@@ -155,6 +155,17 @@ def test_replay_command_in_another_mode(sim_run, tmp_path, capsys):
     assert (report / "fig12_axis_error.png").is_file() and not (report / "overlay.mp4").exists()
 
 
+def test_a_replay_with_another_centerline_stage_says_which(sim_run, tmp_path, capsys):
+    """The reported case: a replay with --centerline skeleton recorded and reported only "mode: paper"."""
+    args = SimpleNamespace(run_dir=str(sim_run.folder), mode="paper", centerline="skeleton",
+                           out=str(tmp_path / "skeleton"))
+    assert replay_command(args) == 0
+    replayed = load_run(tmp_path / "skeleton")
+    assert replayed.summary["mode"] == "paper" and replayed.summary["centerline"] == "skeleton"
+    report = write_report(tmp_path / "skeleton", options={"video": False, "compensation_frames": 0})
+    assert "estimator mode: **paper**, 2D centerline: **skeleton**" in (report / "summary.md").read_text()
+
+
 def test_the_run_times_its_parts(sim_run):
     bench_s = sim_run.summary["bench_s"]
     assert {"physics", "render", "estimate", "record_thread"} <= set(bench_s)
