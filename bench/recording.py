@@ -675,8 +675,16 @@ def load_run(path: str | Path) -> Run:
         RunFolderError: not a run folder (no frames.jsonl or config.json), or a config.json that is
             not a JSON object.
     """
+    given = Path(path)
     path = resolve_run_folder(path)
     frames_path = path / FRAMES_FILE
+    if not path.exists():
+        if given.name == LATEST:  # the default RUN: no run has pointed it anywhere yet
+            raise RunFolderError(f"{given}: no run yet under {given.parent} (run softarm run first, or name a "
+                                 "run folder)")
+        raise RunFolderError(f"{path}: no such folder")
+    if not path.is_dir():
+        raise RunFolderError(f"{path}: a file, not a run folder")
     if not frames_path.is_file():
         raise RunFolderError(f"{path}: not a run folder (no {FRAMES_FILE})")
     config_path = path / CONFIG_FILE

@@ -138,6 +138,14 @@ def test_report_and_replay_answer_a_folder_that_is_not_a_run_alike(tmp_path, cap
     assert replay_command(args) == 2
     err = capsys.readouterr().err
     assert err.count("not a run folder (no frames.jsonl)") == 2
+    # a folder that is not there, a file, and the default RUN before any run: each said as what it is
+    (tmp_path / "a_file").write_text("")
+    for run_dir, said in ((tmp_path / "gone", "gone: no such folder"),
+                          (tmp_path / "a_file", "a file, not a run folder"),
+                          (tmp_path / "runs" / "latest", "no run yet under")):
+        args = SimpleNamespace(run_dir=str(run_dir), mode=None, centerline=None, out=None)
+        assert report_command(args) == 2 and replay_command(args) == 2
+        assert capsys.readouterr().err.count(said) == 2
     from bench.cli import build_parser
 
     for command in ("report", "replay"):

@@ -247,7 +247,7 @@ def test_view_without_a_display_fails_at_once_and_says_what_to_use(rerun_env, tm
     # softarm view without --rrd opens the viewer: the same answer
     result = subprocess.run([sys.executable, "-m", "bench.cli", "view", str(tmp_path / "none")], cwd=tmp_path,
                             env=env, capture_output=True, text=True, timeout=120)
-    assert result.returncode == 2 and "not a run folder" in result.stderr  # a bad RUN is named first
+    assert result.returncode == 2 and "none: no such folder" in result.stderr  # a bad RUN is named first
 
 
 def test_view_of_a_run_without_a_display_says_what_to_use(twin_run, rerun_env, capsys, monkeypatch):
