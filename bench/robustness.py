@@ -91,6 +91,13 @@ def robustness_specs(config: BenchConfig, conditions: Sequence[Condition], frame
                           figure_frame=frames - 1, tag=c.name) for c in conditions]
 
 
+def check_presets(specs: Sequence[SequenceSpec]) -> None:
+    """Raise ``ConfigFileError`` (a ValueError naming the scene file's presets) for a condition whose preset
+    the scene file does not define: before any episode runs."""
+    for spec in {s.preset: s for s in specs}.values():
+        twin_config(spec)
+
+
 def summarize_mode(records: Sequence[FrameRecord], key: str) -> dict[str, Any]:
     """One row's metrics: one mode over one condition's frames."""
     estimates = [r.estimate(key) for r in records]
@@ -156,8 +163,7 @@ def robustness_study(config: BenchConfig, conditions: Sequence[Condition], frame
     """
     engine = engine or EngineConfig()
     specs = robustness_specs(config, conditions, frames)
-    for spec in {s.preset: s for s in specs}.values():
-        twin_config(spec)  # an unknown preset is an error now, naming the scene file's presets
+    check_presets(specs)
     start = time.perf_counter()
     outcomes = run_episodes(sequence_episode, specs, engine, label="robustness", progress=progress,
                             cost=expected_cost)
@@ -326,6 +332,7 @@ def robustness_command(args) -> int:
         twin_seed = twin_config(sequence_spec(config, frames=1, preset="clean", scene_seed=0, estimators={})).scene_seed
         conditions = [parse_condition(c, twin_seed) for c in (getattr(args, "conditions", None) or CONDITIONS)]
         frames = frames_from_args(args, DEFAULT_FRAMES, MAX_FRAMES, "frames per condition")
+        check_presets(robustness_specs(config, conditions, 1))  # a bad --conditions, like any bad option
         out = out_folder(args, config, "robustness")
     except (ConfigError, ValueError) as e:
         print(f"softarm study robustness: {e}", file=sys.stderr)

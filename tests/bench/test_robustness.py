@@ -145,11 +145,12 @@ def test_conditions_parse_preset_and_seed():
 
 
 def test_an_unknown_condition_names_the_scene_files_presets(tmp_path, capsys):
+    """Refused as a bad option is (exit 2, as softarm run answers an unknown preset), before anything runs."""
     args = SimpleNamespace(which="robustness", config=None, frames=2, out=str(tmp_path / "s"), conditions=["lab",
                            "fog"], engine="local", workers=1, ray_address=None)
-    assert robustness_command(args) == 1
-    err = capsys.readouterr().err
-    assert "unknown preset 'fog'" in err and "bright_warm" in err and "nothing written" in err
+    assert robustness_command(args) == 2
+    said = capsys.readouterr()
+    assert "unknown preset 'fog'" in said.err and "bright_warm" in said.err and said.out == ""
     assert not (tmp_path / "s").exists()
 
 
