@@ -95,6 +95,8 @@ def write_accuracy_study(rows: list[dict], out: Path, frames: int) -> list[str]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from bench.study_files import counted
+
     out.mkdir(parents=True, exist_ok=True)
     keys = ["frame", "variant", "point", "valid", "reason", "arc_fraction", "row_angle_deg", "error_mm",
             "x_mm", "y_mm", "z_mm"]
@@ -103,7 +105,7 @@ def write_accuracy_study(rows: list[dict], out: Path, frames: int) -> list[str]:
         writer.writeheader()
         for row in rows:
             writer.writerow({k: row.get(k, "") for k in keys})
-    headline = [f"accuracy study: {frames} frames, point-to-curve RMSE against the exact backbone"]
+    headline = [f"accuracy study: {counted(frames, 'frame')}, point-to-curve RMSE against the exact backbone"]
     lines = ["# Accuracy along the arm and against the angle to the image rows", "",
              f"{frames} twin frames, every estimated point scored against the exact backbone (point to curve).", "",
              "| estimator | valid frames | RMSE | x / y / z RMSE | largest |", "|---|---|---|---|---|"]
@@ -171,7 +173,7 @@ def accuracy_command(args) -> int:
     from bench.engines import EngineError, engine_from_args, run_episodes, workers_used
     from bench.episodes import sequence_episode, sequence_spec
     from bench.frame_record import FrameRecord
-    from bench.study_files import finish_study, frames_from_args, out_folder, write_results, write_study
+    from bench.study_files import counted, finish_study, frames_from_args, out_folder, write_results, write_study
     from twin.twin import TwinConfig
 
     try:
@@ -187,8 +189,8 @@ def accuracy_command(args) -> int:
     specs = [sequence_spec(config, frames=frames, preset=twin.scene_preset, scene_seed=twin.scene_seed,
                            estimators={"main": base.replace(**changes).as_dict()}, tag=name)
              for name, changes in VARIANTS.items()]
-    print(f"softarm study accuracy: {len(specs)} estimators x {frames} frames on the {engine.name} engine ...",
-          flush=True)
+    print(f"softarm study accuracy: {counted(len(specs), 'estimator')} x {counted(frames, 'frame')} on the "
+          f"{engine.name} engine ...", flush=True)
     start = time.perf_counter()
     try:
         outcomes = run_episodes(sequence_episode, specs, engine, label="accuracy",

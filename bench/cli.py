@@ -108,8 +108,10 @@ def build_parser() -> argparse.ArgumentParser:
                     "softarm calibrate --out calib.toml")
     calibrate.add_argument("--config", help="bench config (TOML); default models/bench.toml")
     calibrate.add_argument("--backend", choices=("sim", "rig"), help="override the config's backend")
-    calibrate.add_argument("--out", help="calibration file to write (TOML)")
-    calibrate.add_argument("--views", type=int, help="number of board views to use")
+    calibrate.add_argument("--out", help="calibration file to write (TOML); default runs/calibration_<timestamp>.toml "
+                           "under the working directory")
+    calibrate.add_argument("--views", type=int, help="number of board views to use; default 15 on the twin, 20 on "
+                           "the rig")
     calibrate.add_argument("--board", metavar="COLSxROWS", help="inner corners of the checkerboard; default 9x6")
     calibrate.add_argument("--square-mm", type=float, help="printed square size in mm; default 40")
 

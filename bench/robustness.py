@@ -32,7 +32,7 @@ from bench.engines import EngineConfig, EngineError, engine_from_args, run_episo
 from bench.episodes import SequenceSpec, expected_cost, sequence_episode, sequence_spec, twin_config
 from bench.frame_record import FrameRecord
 from bench.scoring import pooled_rmse
-from bench.study_files import finish_study, frames_from_args, out_folder, write_results, write_study
+from bench.study_files import counted, finish_study, frames_from_args, out_folder, write_results, write_study
 
 CONDITIONS = ("clean", "lab", "dim", "bright_warm", "blur", "occluded", "random")
 DEFAULT_FRAMES = 60
@@ -239,8 +239,8 @@ def headline(rows: Sequence[Mapping[str, Any]], targets: Mapping[str, list[str]]
             note = "met" if not targets.get(r["condition"]) else "MISSED: " + "; ".join(targets[r["condition"]])
         lines.append(f"{r['condition']:14s} {r['mode']:8s} {r['valid']:>4d}/{r['frames']:<4d} {r['false_valid']:>5d} "
                      f"{r['rmse_mm']:8.2f} {r['tip_mm']:7.2f} {r['fps']:6.1f}  {note}")
-    lines.append(f"{study['episodes']} episodes in {study['wall_s']:.1f} s on the {study['engine']['name']} engine "
-                 f"({study['engine']['workers']} workers)")
+    lines.append(f"{counted(study['episodes'], 'episode')} in {study['wall_s']:.1f} s on the {study['engine']['name']} "
+                 f"engine ({counted(study['engine']['workers'], 'worker')})")
     return lines
 
 
@@ -337,8 +337,8 @@ def robustness_command(args) -> int:
     except (ConfigError, ValueError) as e:
         print(f"softarm study robustness: {e}", file=sys.stderr)
         return 2
-    print(f"softarm study robustness: {len(conditions)} conditions x {frames} frames on the {engine.name} engine ...",
-          flush=True)
+    print(f"softarm study robustness: {counted(len(conditions), 'condition')} x {counted(frames, 'frame')} on the "
+          f"{engine.name} engine ...", flush=True)
 
     def work():
         result = robustness_study(config, conditions, frames, out, engine,

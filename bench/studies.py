@@ -49,7 +49,7 @@ from bench.episodes import sequence_episode, sequence_spec
 from bench.frame_record import FrameRecord
 from bench.process import Capture, process
 from bench.recording import write_json
-from bench.study_files import finish_study, frames_from_args, out_folder, write_results, write_study
+from bench.study_files import counted, finish_study, frames_from_args, out_folder, write_results, write_study
 from estimator import CalibrationFileError, CenterlineEstimator, EstimatorConfig, StereoCalibration
 from estimator.centerline import centerline_nodes
 from estimator.config import CENTERLINES
@@ -122,7 +122,7 @@ def study_command(args) -> int:
         print(f"softarm study: {e}", file=sys.stderr)
         return 2
     progress = not getattr(args, "no_progress", False)
-    print(f"softarm study {which}: rendering {n} twin frames along the experiment ...", flush=True)
+    print(f"softarm study {which}: rendering {counted(n, 'twin frame')} along the experiment ...", flush=True)
     start = time.perf_counter()
     try:
         frames, calibration = twin_frames(config, n, engine, progress=progress)

@@ -83,6 +83,11 @@ def writable_folder(path: Path, what: str) -> Path:
     return path
 
 
+def counted(n: int, noun: str) -> str:
+    """``n`` and the noun, plural unless one: "1 condition", "7 conditions"."""
+    return f"{n} {noun}{'' if n == 1 else 's'}"
+
+
 def cell(value: Any) -> str:
     """One value as ``results.csv`` writes it (floats to ``DECIMALS`` places, NaN and None as empty)."""
     if value is None:

@@ -180,6 +180,18 @@ def test_an_option_of_another_study_is_refused_not_ignored(capsys, argv, said):
     assert stop.value.code == 2 and said in capsys.readouterr().err
 
 
+def test_counts_read_as_english_and_calibrate_help_gives_its_defaults():
+    from bench.calibrate import DEFAULT_VIEWS
+    from bench.cli import build_parser
+    from bench.study_files import counted
+
+    assert (counted(1, "worker"), counted(2, "worker"), counted(0, "condition")) == ("1 worker", "2 workers",
+                                                                                     "0 conditions")
+    text = " ".join(build_parser()._subparsers._group_actions[0].choices["calibrate"].format_help().split())
+    assert f"default {DEFAULT_VIEWS['sim']} on the twin, {DEFAULT_VIEWS['rig']} on the rig" in text
+    assert "default runs/calibration_<timestamp>.toml" in text
+
+
 def _figures_saved(monkeypatch) -> list:
     import matplotlib
 
