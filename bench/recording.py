@@ -36,6 +36,7 @@ read (or is not a JSON object) is recomputed from them.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
@@ -197,6 +198,33 @@ def resolve_run_folder(path: str | Path) -> Path:
             return path
         if name and "/" not in name and (path.parent / name).is_dir():
             return path.parent / name
+    return path
+
+
+def writable_folder(path: Path, what: str) -> Path:
+    """``path`` once it is known that a folder can be written there, before a run or a study spends its time.
+
+    Raises:
+        ValueError: a file is in the way, or the folder cannot be made or written to (with the reason).
+    """
+    missing = []
+    existing = path
+    while not existing.exists() and existing != existing.parent:
+        missing.append(existing)
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ValueError(f"{what} {path}: {existing} is a file, not a folder")
+    probe = path / f".softarm-write-check-{os.getpid()}"
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as e:
+        raise ValueError(f"{what} {path}: cannot be written ({e.strerror or e})") from e
+    finally:
+        for folder in missing:  # made only to check: the study makes them again when it writes
+            with contextlib.suppress(OSError):
+                folder.rmdir()
     return path
 
 

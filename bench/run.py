@@ -49,7 +49,15 @@ from bench.devices import Devices, Stop, ValveFaultError
 from bench.experiments import Schedule, make_schedule
 from bench.frame_record import FrameRecord
 from bench.process import process
-from bench.recording import RunWriter, human_bytes, jsonable, new_run_folder, point_latest, summarize_run
+from bench.recording import (
+    RunWriter,
+    human_bytes,
+    jsonable,
+    new_run_folder,
+    point_latest,
+    summarize_run,
+    writable_folder,
+)
 from bench.scoring import invalid_lines, summary_table
 from bench.worker import FrameWorker
 from estimator import CalibrationFileError, CenterlineEstimator, EstimatorConfig
@@ -241,6 +249,8 @@ def run_experiment(config: BenchConfig, options: RunOptions) -> RunOutcome:
     """
     schedule = make_schedule(config.experiment, frames=options.frames)
     est_configs = estimator_configs(config, options)
+    if options.out is not None:
+        writable_folder(options.out, "--out")  # a folder that takes no file is said before the devices open
     stop = Stop()
     with _SignalGuard(stop):
         if stop:  # a signal before we even started

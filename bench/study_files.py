@@ -12,10 +12,8 @@ wall time and episodes per second. A local and a Ray run of the same study give 
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import math
-import os
 import platform
 import sys
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -52,35 +50,10 @@ def out_folder(args, config, which: str) -> Path:
     from bench.recording import new_run_folder
 
     if getattr(args, "out", None):
+        from bench.recording import writable_folder
+
         return writable_folder(Path(args.out), "--out")
     return new_run_folder(config.recording.runs_root(), f"study_{which}_{time.strftime('%Y-%m-%d_%H%M%S')}")
-
-
-def writable_folder(path: Path, what: str) -> Path:
-    """``path`` once it is known that a folder can be written there, before a study spends its time.
-
-    Raises:
-        ValueError: a file is in the way, or the folder cannot be made or written to (with the reason).
-    """
-    missing = []
-    existing = path
-    while not existing.exists() and existing != existing.parent:
-        missing.append(existing)
-        existing = existing.parent
-    if not existing.is_dir():
-        raise ValueError(f"{what} {path}: {existing} is a file, not a folder")
-    probe = path / f".softarm-write-check-{os.getpid()}"
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as e:
-        raise ValueError(f"{what} {path}: cannot be written ({e.strerror or e})") from e
-    finally:
-        for folder in missing:  # made only to check: the study makes them again when it writes
-            with contextlib.suppress(OSError):
-                folder.rmdir()
-    return path
 
 
 def counted(n: int, noun: str) -> str:

@@ -119,6 +119,15 @@ def test_a_schedule_the_valves_cannot_take_fails_before_anything_moves(rig_folde
     assert not out.exists()
 
 
+def test_an_out_folder_that_takes_no_file_fails_before_the_devices_open(rig_folder, board, capsys):
+    """The reported case: --out /proc/x warned "may fill the disk (0 B free)" before saying the folder
+    cannot be written; now the folder is checked first and the board never hears from the run."""
+    assert run_command(run_args(rig_config(rig_folder, board.port), Path("/proc/softarm-run-test"))) == 2
+    err = capsys.readouterr().err
+    assert "--out /proc/softarm-run-test: cannot be written" in err and "nothing was moved" in err
+    assert "fill the disk" not in err and board.frames_received == 0 and not board.commands
+
+
 def test_bad_config_names_file_and_key(rig_folder, board, capsys):
     path = rig_config(rig_folder, board.port, extra="colour = \"red\"\n")
     assert run_command(run_args(path, rig_folder / "run")) == 2
