@@ -160,7 +160,7 @@ def test_an_out_folder_that_cannot_be_written_is_refused_before_the_study_runs(t
         assert f"--out {out}: " in said.err and why in said.err
         assert said.out == ""  # nothing started
     # a folder that can be written is not left behind by the check (the study makes it when it writes)
-    from bench.study_files import writable_folder
+    from bench.recording import writable_folder
 
     assert writable_folder(tmp_path / "new" / "deeper", "--out") == tmp_path / "new" / "deeper"
     assert not (tmp_path / "new").exists()
