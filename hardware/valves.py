@@ -24,6 +24,13 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import serial
 
+try:  # pyserial's POSIX port raises termios.error (not an OSError) when the other end of a pty is gone
+    import termios
+
+    _PORT_ERRORS: tuple[type[BaseException], ...] = (serial.SerialException, OSError, termios.error)
+except ImportError:  # Windows
+    _PORT_ERRORS = (serial.SerialException, OSError)
+
 from hardware.errors import (
     BoardReplyError,
     DeviceError,
@@ -164,9 +171,13 @@ class SerialValveBank(ValveBank):
             self._version = self._check_version(self._exchange("VER")[1])
             self._exchange("VENT", connecting=True)
             self._setpoints_bar = np.zeros(len(self.channels))  # the board starts vented, whatever was set before
-        except BaseException:
-            self._serial.close()
+        except BaseException as e:
+            with contextlib.suppress(*_PORT_ERRORS):
+                self._serial.close()
             self._serial = None
+            if isinstance(e, _PORT_ERRORS) and not isinstance(e, DeviceError):  # LinkLostError is an OSError too
+                raise DeviceError(f"valve port {self._port!r} failed while connecting ({_describe(e)}); check the "
+                                  "cable and that the board is powered") from e
             raise
         self._heartbeat_stop.clear()
         self._heartbeat = threading.Thread(target=self._keep_alive, name=f"valves-heartbeat {self._port}",
@@ -204,7 +215,8 @@ class SerialValveBank(ValveBank):
         self._heartbeat = None
         ser, self._serial = self._serial, None
         if ser is not None:
-            ser.close()
+            with contextlib.suppress(*_PORT_ERRORS):  # a port whose other end is gone: released all the same
+                ser.close()
 
     def check(self) -> None:
         """Raise the fault recorded since connect, if any (see ``ValveBank.check``).
@@ -337,8 +349,10 @@ class SerialValveBank(ValveBank):
                 reply = self._await_reply(ser, seq)
                 if reply is not None:
                     break
-        except (serial.SerialException, OSError) as e:
-            raise self._lose_link(f"{self._port}: serial I/O failed during {verb}: {e}") from e
+        except _PORT_ERRORS as e:
+            raise self._lose_link(f"{self._port}: serial I/O failed during {verb} ({_describe(e)}): the valve "
+                                  "board's link is lost; the board's watchdog vents its valves when it hears "
+                                  "nothing") from e
         if reply is None:
             hint = (f"check that the board is powered and flashed, the cable, the baud rate ({self._baud}) and "
                     "that no other program holds the port")
@@ -471,7 +485,7 @@ class SerialValveBank(ValveBank):
         try:
             ser.write(b"\n" + encode(self._next_seq(), "VENT"))
             ser.flush()
-        except (serial.SerialException, OSError):
+        except _PORT_ERRORS:
             pass
 
     def _next_seq(self) -> int:
@@ -499,8 +513,9 @@ class SerialValveBank(ValveBank):
                 if isinstance(e, DeviceError):
                     fault = e  # recorded already, unless it was a refusal (NAK)
                 else:
-                    fault = DeviceError(f"{self!r}: the heartbeat failed ({type(e).__name__}: {e}); valves "
-                                        "vented; reconnect to continue")
+                    fault = DeviceError(f"{self!r}: the heartbeat failed ({type(e).__name__}: {e}); a VENT was "
+                                        "sent if the link still carries it (the board's watchdog vents "
+                                        "otherwise); reconnect to continue")
                     fault.__cause__ = e
                 if not self._is_standing(fault):
                     with self._lock:  # its VENT must not interleave with a caller's frame on the wire
@@ -529,6 +544,11 @@ class SerialValveBank(ValveBank):
             finally:
                 self._lock.release()
         self._blind_vent()
+
+
+def _describe(error: BaseException) -> str:
+    """A port error as one phrase: its name and what it says (termios.error carries a bare tuple)."""
+    return f"{type(error).__name__}: {error}"
 
 
 class _EmergencyVent:

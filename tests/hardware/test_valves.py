@@ -156,6 +156,33 @@ def test_a_lost_link_noticed_only_by_the_heartbeat_is_raised_by_close(board, ban
     assert not bank.is_connected
 
 
+@pytest.mark.parametrize("then", ["set", "close", "with"])
+def test_a_board_whose_end_of_the_link_is_gone_is_a_lost_link_naming_the_port(then):
+    """The reported case: the emulator's pty closed under a connected bank, and the next call raised a raw
+    termios.error (not an OSError, so not seen as a lost link), close() and a ``with`` block the same,
+    while the heartbeat's record said "valves vented" although no VENT could be sent."""
+    board = BoardEmulator()
+    port = board.start_pty()
+    bank = SerialValveBank(port, ARM_CHANNELS, max_pressure_bar=2.5)
+    bank.connect()
+    bank.set_pressures([1.0] * 7)
+    board.stop()
+    if then == "with":
+        with pytest.raises(LinkLostError, match=re.escape(port)), bank:
+            assert wait_until(lambda: bank.fault is not None), "the heartbeat never noticed"
+            bank.set_pressures([0.5] * 7)
+    elif then == "set":
+        assert wait_until(lambda: bank.fault is not None), "the heartbeat never noticed"
+        with pytest.raises(LinkLostError, match=f"{re.escape(port)}: serial I/O failed during HB.*link is lost"):
+            bank.set_pressures([0.5] * 7)
+        assert "valves vented" not in str(bank.fault)
+        bank.close()  # reported already: closing releases the port without a raw error
+    else:
+        with pytest.raises(LinkLostError, match=re.escape(port)):  # the close noticed it, or the heartbeat did
+            bank.close()
+    assert not bank.is_connected
+
+
 def test_a_board_that_does_not_answer_is_a_connection_error_with_a_hint():
     bank = SerialValveBank("loop://", ARM_CHANNELS, max_pressure_bar=2.5)  # hears only its own echo
     with pytest.raises(ConnectionError, match=r"did not answer VER \(3 attempts, 50 ms each\): check that the board"):
