@@ -59,7 +59,10 @@ def check_number(name: str, value: object, low: float, high: float, unit: str = 
     if not is_real_number(value):
         kind = "a boolean" if isinstance(value, bool | np.bool_) else f"a {type(value).__name__}"
         raise WrongTypeError(f"{name}: expected a number in {allowed}, got {value!r} ({kind})")
-    number = float(value)
+    try:
+        number = float(value)
+    except OverflowError:  # an int beyond a double
+        raise ValueError(f"{name}: expected a finite number in {allowed}, got {value!r:.40}") from None
     if not math.isfinite(number) or number < low or number > high or (low_open and number == low):
         raise ValueError(f"{name}: expected a finite number in {allowed}, got {value!r}")
     return number
@@ -297,7 +300,10 @@ class ValveBank(ABC):
         if not is_real_number(value):
             raise WrongTypeError(f"channel {name}: pressure {value!r} is not a number of bar "
                                  f"(a {type(value).__name__})")
-        bar = float(value)
+        try:
+            bar = float(value)
+        except OverflowError:  # an int beyond a double (10**400): no pressure any valve could take
+            raise ValueError(f"channel {name}: pressure {value!r:.40} is too large for a number of bar") from None
         if math.isnan(bar):
             raise ValueError(f"channel {name}: pressure is NaN")
         if math.isinf(bar):
