@@ -622,7 +622,8 @@ def _fits(value: Any, hint: Any) -> bool:
         return isinstance(value, list)
     if hint not in _SCALARS:
         raise TypeError(f"build_section: the loader does not know the field type {hint!r}")
-    return isinstance(value, _SCALARS[hint]) and (hint is bool or not isinstance(value, bool))
+    # Any takes booleans too: what such a field holds is checked where it is used (the estimator's table)
+    return isinstance(value, _SCALARS[hint]) and (hint in (bool, Any) or not isinstance(value, bool))
 
 
 def _is_mapping(hint: Any) -> bool:
@@ -637,7 +638,7 @@ def _expected(hint: Any) -> str:
     if typing.get_origin(hint) is tuple:
         return "an array"
     return {bool: "true or false", int: "an integer", float: "a number", str: "a string",
-            Path: "a path string"}.get(hint, str(hint))
+            Path: "a path string", Any: "a value"}.get(hint, str(hint))
 
 
 def _resolve_default(value: Any, defaults_dir: Path) -> Any:

@@ -7,6 +7,7 @@ faithful reproduction and any field can still be overridden for a study.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, fields
 
 from estimator.som import ORDERS as SOM_ORDERS
@@ -195,7 +196,10 @@ class EstimatorConfig:
         _check(_int(self.n_points) and 3 <= self.n_points <= 500, "n_points", "an integer in [3, 500]",
                self.n_points)
         for name in ("hsv_low", "hsv_high"):
-            value = tuple(getattr(self, name))
+            given = getattr(self, name)
+            _check(isinstance(given, tuple | list), name, "(H, S, V) integers with H in [0, 180], S and V in [0, 255]",
+                   given)
+            value = tuple(given)
             ok = len(value) == 3 and all(_int(v) for v in value)
             ok = ok and 0 <= value[0] <= 180 and all(0 <= v <= 255 for v in value[1:])
             _check(ok, name, "(H, S, V) integers with H in [0, 180], S and V in [0, 255]", getattr(self, name))
@@ -210,26 +214,36 @@ class EstimatorConfig:
                    getattr(self, name))
         _check(self.contour_step >= 1 and self.mask_stride >= 1, "contour_step", "at least 1", self.contour_step)
         _check(self.som_epochs >= 1, "som_epochs", "at least 1", self.som_epochs)
-        _check(0 < self.som_alpha0 <= 1, "som_alpha0", "a number in (0, 1]", self.som_alpha0)
-        _check(self.som_sigma is None or (isinstance(self.som_sigma, int | float) and not isinstance(
-            self.som_sigma, bool) and self.som_sigma > 0), "som_sigma", "a positive number or None (N / 2)",
-            self.som_sigma)
-        _check(self.arm_radius_m > 0, "arm_radius_m", "a positive number of metres", self.arm_radius_m)
+        _check(_number(self.canny_low) and self.canny_low >= 0, "canny_low", "a non-negative number", self.canny_low)
+        _check(_number(self.canny_high) and self.canny_high >= self.canny_low, "canny_high",
+               f"a number not below canny_low ({self.canny_low})", self.canny_high)
+        _check(_number(self.som_alpha0) and 0 < self.som_alpha0 <= 1, "som_alpha0", "a number in (0, 1]",
+               self.som_alpha0)
+        _check(self.som_sigma is None or (_number(self.som_sigma) and self.som_sigma > 0), "som_sigma",
+               "a positive number or None (N / 2)", self.som_sigma)
+        _check(_number(self.arm_radius_m) and self.arm_radius_m > 0, "arm_radius_m", "a positive number of metres",
+               self.arm_radius_m)
         _check(_int(self.smoothing_degree) and 0 <= self.smoothing_degree <= 12, "smoothing_degree",
                "an integer in [0, 12]", self.smoothing_degree)
-        _check(0 <= self.max_self_approach < 5, "max_self_approach", "a fraction in [0, 5)", self.max_self_approach)
-        _check(self.arm_length_m is None or self.arm_length_m > 0, "arm_length_m", "a positive length or None",
-               self.arm_length_m)
-        _check(0 <= self.min_length_fraction < 1, "min_length_fraction", "a fraction in [0, 1)",
-               self.min_length_fraction)
-        _check(self.max_length_fraction > 1, "max_length_fraction", "a fraction above 1", self.max_length_fraction)
-        _check(self.max_gap_widths > 0, "max_gap_widths", "a positive number", self.max_gap_widths)
-        _check(self.max_bridge_widths > 0, "max_bridge_widths", "a positive number", self.max_bridge_widths)
-        _check(self.max_width_ratio > 1, "max_width_ratio", "a ratio above 1", self.max_width_ratio)
-        _check(0 < self.max_wide_fraction <= 1, "max_wide_fraction", "a fraction in (0, 1]", self.max_wide_fraction)
+        _check(_number(self.max_self_approach) and 0 <= self.max_self_approach < 5, "max_self_approach",
+               "a fraction in [0, 5)", self.max_self_approach)
+        _check(self.arm_length_m is None or (_number(self.arm_length_m) and self.arm_length_m > 0), "arm_length_m",
+               "a positive length or None", self.arm_length_m)
+        _check(_number(self.min_length_fraction) and 0 <= self.min_length_fraction < 1, "min_length_fraction",
+               "a fraction in [0, 1)", self.min_length_fraction)
+        _check(_number(self.max_length_fraction) and self.max_length_fraction > 1, "max_length_fraction",
+               "a fraction above 1", self.max_length_fraction)
+        for name in ("max_gap_widths", "max_bridge_widths"):
+            _check(_number(getattr(self, name)) and getattr(self, name) > 0, name, "a positive number",
+                   getattr(self, name))
+        _check(_number(self.max_width_ratio) and self.max_width_ratio > 1, "max_width_ratio", "a ratio above 1",
+               self.max_width_ratio)
+        _check(_number(self.max_wide_fraction) and 0 < self.max_wide_fraction <= 1, "max_wide_fraction",
+               "a fraction in (0, 1]", self.max_wide_fraction)
         if self.base_pixel is not None:
+            _check(isinstance(self.base_pixel, tuple | list), "base_pixel", "(u, v) pixels", self.base_pixel)
             bp = tuple(self.base_pixel)
-            _check(len(bp) == 2 and all(isinstance(v, int | float) for v in bp), "base_pixel", "(u, v) pixels",
+            _check(len(bp) == 2 and all(_number(v) for v in bp), "base_pixel", "(u, v) pixels, finite numbers",
                    self.base_pixel)
             object.__setattr__(self, "base_pixel", (float(bp[0]), float(bp[1])))
         for name in ("roi", "medial_refinement", "extend_ends", "som_compiled", "som_shrink", "plausibility_checks",
@@ -264,6 +278,11 @@ class EstimatorConfig:
 
 def _int(value) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _number(value) -> bool:
+    """A finite real number, not a boolean (True would read as 1, a string cannot be compared)."""
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _check(ok: bool, name: str, expected: str, got) -> None:

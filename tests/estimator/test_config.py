@@ -1,5 +1,7 @@
 """EstimatorConfig: presets per mode and errors that name the key."""
 
+import math
+
 import pytest
 
 from estimator import EstimatorConfig
@@ -35,6 +37,21 @@ def test_overrides_survive_and_replace_follows_mode():
         ({"arm_radius_m": -1.0}, "arm_radius_m"),
         ({"base_pixel": (1.0,)}, "base_pixel"),
         ({"roi": "yes"}, "roi"),
+        # the wrong type (a TOML string, a boolean) or no finite value: a ValueError naming the key, not a
+        # TypeError from comparing, an OpenCV error at the first frame, or a radius of inf mm (reported cases)
+        ({"som_alpha0": "0.2"}, "som_alpha0"),
+        ({"som_alpha0": True}, "som_alpha0"),
+        ({"arm_radius_m": "0.025"}, "arm_radius_m"),
+        ({"arm_radius_m": math.inf}, "arm_radius_m"),
+        ({"max_gap_widths": "2"}, "max_gap_widths"),
+        ({"max_width_ratio": math.nan}, "max_width_ratio"),
+        ({"arm_length_m": "0.685"}, "arm_length_m"),
+        ({"hsv_low": 5}, "hsv_low"),
+        ({"canny_high": "x"}, "canny_high"),
+        ({"canny_low": -50}, "canny_low"),
+        ({"canny_low": 200, "canny_high": 100}, "canny_high"),
+        ({"base_pixel": (math.nan, 1.0)}, "base_pixel"),
+        ({"base_pixel": 3.0}, "base_pixel"),
     ],
 )
 def test_bad_values_name_the_key(values, key):
