@@ -220,16 +220,22 @@ def find_tube(masks: dict[str, np.ndarray], geometry: TubeGeometry,
     if not lefts or not rights:
         return None, (f"no arm found in the {'left' if not lefts else 'right'} image: nothing of the arm's colour "
                       "has the shape of a tube")
-    behind = False
+    behind = same_place = False
     for left in lefts:
         for right in rights:
             if _stereo_match(left, right, geometry):
                 return {"left": left.mask(masks["left"]), "right": right.mask(masks["right"])}, ""
             same_row = abs(left.path[0][1] - right.path[0][1]) <= max(2.0 * left.half_width, 3.0)
-            behind |= same_row and left.path[0][0] <= right.path[0][0]
+            shift = left.path[0][0] - right.path[0][0]  # the disparity of the tubes' first points
+            same_place |= same_row and abs(shift) < 0.5
+            behind |= same_row and shift <= -0.5
+    # The calibration's baseline sign is checked before any image is looked at: what remains is the images.
+    if same_place:
+        return None, ("no depth: the tube is at the same place in both images (zero disparity: the same image "
+                      "given as left and right?)")
     if behind:
         return None, ("points behind the camera: the tube appears further right in the right image than in the "
-                      "left one (check the baseline sign in the calibration)")
+                      "left one (negative disparity): are the left and right images swapped?")
     return None, (f"no arm found: no tube in the left image matches one in the right image with the width of a "
                   f"{radius} radius at its depth (check arm_radius_m and the calibration)")
 

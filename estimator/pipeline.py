@@ -600,8 +600,14 @@ class CenterlineEstimator:
         baseline), are never returned. Single points behind the camera (rows matched on the wrong
         branch) are a plausibility check: flagged, and dropped only with ``plausibility_checks``.
         """
-        if not np.all(np.isfinite(points)) or np.median(points[:, 2]) <= 0:  # never a confident wrong answer
-            raise _NoArmError("points behind the camera (check the baseline sign in the calibration)")
+        # Never a confident wrong answer. The calibration's baseline was checked before (see estimate()),
+        # so what remains is the images: the same one twice, or left and right handed over swapped.
+        if not np.all(np.isfinite(points)):
+            raise _NoArmError("no depth: the arm is at the same place in both images (zero disparity: the same "
+                              "image given as left and right?)")
+        if np.median(points[:, 2]) <= 0:
+            raise _NoArmError("points behind the camera: the arm lies further left in the left image than in the "
+                              "right one (negative disparity): are the left and right images swapped?")
         with self._plausibility("behind_camera"):
             if np.any(points[:, 2] <= 0):
                 raise _NoArmError("triangulated points behind the camera: left and right centerlines disagree")

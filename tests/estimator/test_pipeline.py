@@ -52,6 +52,17 @@ def test_bad_input_names_expected_and_actual(scene, left, message):
         CenterlineEstimator(scene.calibration).estimate(left, scene.right)
 
 
+@pytest.mark.parametrize(("pair", "said"), [
+    ("swapped", "negative disparity): are the left and right images swapped?"),
+    ("twice", "zero disparity: the same image given as left and right?"),
+])
+def test_images_handed_over_wrongly_are_named_not_blamed_on_the_calibration(scene, pair, said):
+    """The reported case: both came back "check the baseline sign in the calibration", which was fine."""
+    left, right = (scene.right, scene.left) if pair == "swapped" else (scene.left, scene.left)
+    result = CenterlineEstimator(scene.calibration).estimate(left, right)
+    assert not result.valid and said in result.reason and "calibration" not in result.reason
+
+
 @pytest.mark.parametrize("mode", ["default", "paper"])
 def test_armless_frame_is_invalid_and_keeps_the_warm_state(bending_sequence, mode):
     frames = bending_sequence
