@@ -461,14 +461,26 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-pressure-bar", type=float, default=2.5)
     parser.add_argument("--link", type=Path, help="also expose the port under this stable path (a symlink)")
     args = parser.parse_args(argv)
-    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))  # clean up the link on `kill` as on Ctrl-C
-    board = BoardEmulator(channels=args.channels, max_pressure_bar=args.max_pressure_bar)
-    port = board.start_pty()
     link = args.link
+    if link is not None and (link.exists() or not link.parent.is_dir()) and not link.is_symlink():
+        # a stale link of an earlier run is replaced; a real file or a missing folder is the user's to fix
+        parser.error(f"--link {link}: " + ("a file is there (only an old link would be replaced)" if link.exists()
+                                          else f"the folder {link.parent} does not exist"))
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))  # clean up the link on `kill` as on Ctrl-C
+    try:
+        board = BoardEmulator(channels=args.channels, max_pressure_bar=args.max_pressure_bar)
+    except ValueError as e:  # the board's own checks: channels 1..16, 0 < limit <= full scale
+        key, _, rest = str(e).partition(":")
+        parser.error(f"--{key.replace('_', '-')}:{rest}")
+    port = board.start_pty()
     if link is not None:
-        if link.is_symlink():
-            link.unlink()
-        link.symlink_to(port)
+        try:
+            if link.is_symlink():
+                link.unlink()
+            link.symlink_to(port)
+        except OSError as e:
+            board.stop()
+            parser.error(f"--link {link}: {e.strerror or e}")
     print(f"emulated valve board on {link or port} ({args.channels} channels, limit {args.max_pressure_bar} bar)"
           f"{f' -> {port}' if link else ''}; Ctrl-C to stop", flush=True)
     seen = 0

@@ -6,7 +6,7 @@ import serial
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hardware.emulator import BoardEmulator, BoardStateMachine
+from hardware.emulator import BoardEmulator, BoardStateMachine, main
 from hardware.protocol import MAX_COUNT, BoardStatus, BoardVersion, LineSplitter, checksum, decode, encode
 from tests.hardware.polling import wait_until
 
@@ -247,3 +247,26 @@ def test_a_late_emulator_keeps_reading_while_its_replies_wait():
             assert [decode(link.readline()).seq for _ in range(3)] == [1, 2, 3]
         finally:
             link.close()
+
+
+@pytest.mark.parametrize(("argv", "said"), [
+    (["--max-pressure-bar", "nan"], "--max-pressure-bar: expected 0 < nan"),
+    (["--max-pressure-bar", "0"], "--max-pressure-bar: expected 0 < 0.0"),
+    (["--channels", "0"], "--channels: expected 1..16, got 0"),
+])
+def test_the_emulator_command_line_refuses_a_bad_board_without_a_traceback(argv, said, capsys):
+    """The reported case: each printed a Python traceback."""
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    assert stop.value.code == 2 and said in capsys.readouterr().err
+
+
+def test_the_emulator_link_must_not_replace_a_file_or_need_a_missing_folder(tmp_path, capsys):
+    taken = tmp_path / "taken"
+    taken.write_text("mine")
+    for link, said in ((taken, "a file is there"), (tmp_path / "missing" / "x", "does not exist")):
+        with pytest.raises(SystemExit) as stop:
+            main(["--link", str(link)])
+        err = capsys.readouterr().err
+        assert stop.value.code == 2 and f"--link {link}: " in err and said in err
+    assert taken.read_text() == "mine"
