@@ -328,6 +328,8 @@ class StereoCalibration:
         """
         path = Path(path)
         top = TableReader(path, read_toml(path, "calibration", CalibrationFileError), error=CalibrationFileError)
+        # a misspelt key is an error, not a default silently used ("baseline_m" is written for people to read)
+        top.only(["image_size", "baseline_m", *sorted({s for s, _ in _FILE_KEYS.values() if s is not None})])
         tables = {None: top}
         values = {}
         for name, (section, key) in _FILE_KEYS.items():
@@ -335,6 +337,9 @@ class StereoCalibration:
                 found = top.sub(section, required=False)
                 tables[section] = found or TableReader(path, {}, section, error=CalibrationFileError)
             values[name] = tables[section].take(key, _tuple if name == "image_size" else _array)
+        for section, reader in tables.items():
+            if section is not None:
+                reader.done()
         try:
             return cls(**values)
         except CalibrationValueError as e:

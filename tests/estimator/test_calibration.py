@@ -125,7 +125,11 @@ def test_short_distortion_is_padded():
     ("edit", "message"),
     [
         (lambda t: t.replace("T_m", "T_mm"), r"missing key \[extrinsics\] T_m"),
-        (lambda t: t.replace("[right]", "[rite]"), r"missing key \[right\] K"),
+        (lambda t: t.replace("[right]", "[rite]"), r"unknown key rite; did you mean 'right'\?"),
+        (lambda t: t.replace("[left]\n", "[left]\nfoo = 1\n"), r"unknown key \[left\] foo \(known keys: K, dist\)"),
+        (lambda t: t.replace("[extrinsics]\n", "[extrinsics]\nT = [-0.12, 0.0, 0.0]\n"),
+         r"unknown key \[extrinsics\] T \(known keys: R, T_m\)"),
+        (lambda t: t.replace("[left]\n", "image_sise = [1280, 720]\n\n[left]\n", 1), r"unknown key image_sise"),
         (lambda t: t.replace("image_size = [1280, 720]", 'image_size = "hd"'), "key image_size"),
         (lambda t: t.replace("dist = [", "dist = [1.0, 1.0, 1.0, 1.0, 1.0, 1.0, ", 1), r"key \[left\] dist"),
         (lambda t: t.replace("[extrinsics]", "[extrinsics"), "not a TOML calibration file"),
