@@ -274,7 +274,8 @@ class ExperimentConfig:
         problem = frames_problem(self.frames, self.duration_s)
         if problem:
             raise ValueError(f"frames: {problem}")
-        if not 0 <= self.step_at_s < self.duration_s:
+        if not 0 <= self.step_at_s < (self.duration_s if self.kind == "step" else math.inf):
+            # only the step uses it: another kind keeps its default whatever its duration
             raise ValueError(f"step_at_s: expected a time in [0, duration_s), got {self.step_at_s:g}")
         if self.hold_s <= 0:
             raise ValueError(f"hold_s: expected a positive duration, got {self.hold_s:g}")

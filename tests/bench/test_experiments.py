@@ -100,6 +100,13 @@ def test_estimator_mode_override_keeps_the_files_other_keys(tmp_path):
     assert (paper.mode, paper.compensation, paper.n_points, paper.som_input) == ("paper", "none", 25, "contour")
 
 
+def test_a_key_of_another_kind_does_not_refuse_a_schedule(tmp_path):
+    """The reported case: a 1 s ramp was refused over step_at_s (default 1 s), which only the step uses."""
+    path = tmp_path / "bench.toml"
+    path.write_text('[experiment]\nkind = "ramp"\nduration_s = 1.0\nframes = 10\n')
+    assert load_bench_config(path).experiment.duration_s == 1.0
+
+
 @pytest.mark.parametrize(("text", "message"), [
     ("[experiment]\nkind = \"ramps\"\n", r"\[experiment\] kind: expected one of 'ramp', 'step', 'sweep', 'random'"),
     ("[experiment]\nframs = 3\n", r"unknown key \[experiment\] frams; did you mean 'frames'\?"),
@@ -109,6 +116,7 @@ def test_estimator_mode_override_keeps_the_files_other_keys(tmp_path):
     ("[experiment]\nchannels = [\"s3\", \"s3\"]\n", r"\[experiment\] channels: a valve is listed twice"),
     ("[experiment]\nstep_bar = 3.0\n", r"\[experiment\] step_bar: expected a step in \(0, max_bar - start_bar\]"),
     ("[experiment]\nframes = 0\n", r"\[experiment\] frames: expected at least one frame"),
+    ("[experiment]\nkind = \"step\"\nduration_s = 1.0\nframes = 10\n", r"\[experiment\] step_at_s: expected a time"),
     ("[estimator]\nmdoe = \"paper\"\n", r"\[estimator\]: unknown key 'mdoe'"),
     ("[estimator]\nmode = \"fast\"\n", r"\[estimator\]: mode: expected one of"),
     ("[estimator]\nn_points = \"20\"\n", r"\[estimator\]: n_points: expected an integer"),
