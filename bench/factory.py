@@ -67,9 +67,20 @@ def rig_calibration(cam: CameraConfig, config_path: Path) -> StereoCalibration:
         CalibrationFileError: missing or malformed; the message starts with the config file and the key.
     """
     try:
-        return load_calibration(cam.calibration, cam.resolution)
+        calibration = load_calibration(cam.calibration, cam.resolution)
     except CalibrationFileError as e:
         raise CalibrationFileError(f"{config_path} [rig.camera] calibration: {e}") from e
+    if cam.is_device and Path(cam.calibration).suffix.lower() != ".conf":
+        # a .conf holds every resolution and is read for this one; a .toml holds one: it must be this one
+        from hardware.zed import ZED_RESOLUTIONS
+
+        eye = ZED_RESOLUTIONS[cam.resolution]
+        if tuple(calibration.image_size) != tuple(eye):
+            raise CalibrationFileError(
+                f"{config_path} [rig.camera] calibration: {cam.calibration} is for {calibration.image_size[0]}x"
+                f"{calibration.image_size[1]} images, but resolution = {cam.resolution!r} gives {eye[0]}x{eye[1]} "
+                "per eye: calibrate at this resolution, or set the resolution the file was made for")
+    return calibration
 
 
 def nominal_calibration(cam: CameraConfig) -> StereoCalibration:

@@ -479,3 +479,20 @@ def test_rig_check_reports_the_camera_and_calibration_when_the_board_is_silent(r
     assert "valve board  FAILED: " in captured.err and "did not answer VER" in captured.err
     assert "focal left 35.2/35.2 px" in captured.out and "grabbed frame 0: 2 x 64x48" in captured.out
     assert "FAILED: valves (the other devices are reported above)" in captured.err
+
+
+def test_a_one_resolution_calibration_must_match_the_cameras_resolution(tmp_path):
+    """The reported case: resolution = "VGA" beside an HD .toml calibration was ignored; frames of one size
+    would then meet a calibration of another. A .conf holds every resolution and is read for the one set."""
+    from bench.config import CameraConfig
+    from bench.factory import rig_calibration
+    from tests.scenes import zed_like_calibration
+
+    path = tmp_path / "calib.toml"
+    zed_like_calibration().save(path)  # 1280 x 720: HD
+    assert rig_calibration(CameraConfig(0, path, "HD"), tmp_path / "rig.toml").image_size == (1280, 720)
+    with pytest.raises(CalibrationFileError, match=r"rig.toml \[rig.camera\] calibration: .*calib.toml is for "
+                                                   r"1280x720 images, but resolution = 'VGA' gives 672x376 per eye"):
+        rig_calibration(CameraConfig(0, path, "VGA"), tmp_path / "rig.toml")
+    # a recording stands in for the camera: its own frames' size is what counts, not the resolution
+    assert rig_calibration(CameraConfig(tmp_path / "session.mkv", path, "VGA"), tmp_path / "rig.toml")
