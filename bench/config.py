@@ -415,6 +415,9 @@ class BenchConfig:
             raise ValueError("rig: backend 'rig' needs a [rig] section with [rig.camera] (and [rig.valves] to run "
                              "experiments)")
         object.__setattr__(self, "estimator", types.MappingProxyType(dict(self.estimator)))
+        # On the twin the estimator is told the twin's arm (its config is all it knows of the geometry):
+        # length and radius come from arm.toml unless [estimator] sets them.
+        object.__setattr__(self, "_arm", _twin_tube(self.sim.twin) if self.backend == "sim" else {})
         self.estimator_config()  # unknown keys and bad values fail on load, naming [estimator] and the key
 
     def estimator_config(self, mode: str | None = None, **changes: Any) -> EstimatorConfig:
@@ -423,11 +426,19 @@ class BenchConfig:
         Raises:
             ValueError: an unknown key or a bad value; the message names ``[estimator]`` and the key.
         """
-        table = dict(self.estimator)
+        table = {**self._arm, **self.estimator}
         if mode is not None:
             table["mode"] = mode  # the file's other keys stay; the new mode's presets fill the rest
         table.update(changes)
         return EstimatorConfig.from_dict(table, source="[estimator]")
+
+
+def _twin_tube(twin_toml: Path) -> dict[str, float]:
+    """``arm_length_m`` and ``arm_radius_m`` of the arm the twin file names (``twin.params.tube_of``)."""
+    from twin.params import ArmParams, tube_of, twin_arm_file
+
+    length, radius = tube_of(ArmParams.load(twin_arm_file(twin_toml)))
+    return {"arm_length_m": length, "arm_radius_m": radius}
 
 
 # --- loading ------------------------------------------------------------------------------

@@ -286,3 +286,22 @@ def _section(reader: TableReader, top: TableReader) -> SectionParams:
                  for pma in reader.tables("pma", what="one [[section.pma]] table per PMA"))
     return _build(SectionParams, reader, top, extra={"pmas": pmas}, length_m=float, radius_m=float, mass_kg=float,
                   EI_Nm2=float, GJ_Nm2=float, EA_N=float, damping_time_s=float, n_links=int)
+
+
+def twin_arm_file(twin_toml: str | Path) -> Path:
+    """The arm parameter file a ``twin.toml`` names (its ``arm`` key), without loading the twin.
+
+    Raises:
+        ConfigFileError: the twin file is missing or not TOML, or names no arm file that exists.
+    """
+    from estimator.config_file import file_in
+
+    path = Path(twin_toml)
+    return TableReader(path, read_toml(path, "twin")).take("arm", file_in(path.parent))
+
+
+def tube_of(arm: ArmParams) -> tuple[float, float]:
+    """(length, radius) in metres of the one tube an estimator assumes for this arm: the arm's length
+    at rest, and its sections' radii averaged over their lengths."""
+    sections = sum(s.length_m for s in arm.sections)
+    return arm.total_length_m, sum(s.radius_m * s.length_m for s in arm.sections) / sections

@@ -214,3 +214,31 @@ def test_the_wheel_ships_the_models_and_nothing_finds_them_by_the_checkout():
         for path in (repo / package).rglob("*.py"):
             text = path.read_text()
             assert '"models"' not in text.replace('files("models")', ""), f"{path} finds models/ by the checkout"
+
+
+def test_on_the_twin_the_estimator_is_told_the_twins_arm(tmp_path):
+    """The reported case: a shorter, thinner arm in a copy of arm.toml, and every frame invalid ("only 373 mm
+    of the 685 mm arm is visible", "the width of a 25 mm radius") until [estimator] was edited by hand."""
+    import shutil
+
+    for name in ("twin.toml", "arm.toml", "camera.toml", "scene.toml"):
+        shutil.copy(MODELS / name, tmp_path / name)
+    arm = (tmp_path / "arm.toml").read_text()
+    for old, new in (("length_m = 0.225", "length_m = 0.12"), ("length_m = 0.224", "length_m = 0.12"),
+                     ("length_m = 0.220", "length_m = 0.11"), ("radius_m = 0.026", "radius_m = 0.015"),
+                     ("radius_m = 0.025", "radius_m = 0.014"), ("radius_m = 0.022", "radius_m = 0.013")):
+        assert old in arm, old
+        arm = arm.replace(old, new)
+    (tmp_path / "arm.toml").write_text(arm)
+    bench = tmp_path / "bench.toml"
+    bench.write_text('[sim]\ntwin = "twin.toml"\n')
+    estimator = load_bench_config(bench).estimator_config()
+    assert estimator.arm_length_m == pytest.approx(0.12 + 0.12 + 0.11 + 2 * 0.008)
+    assert estimator.arm_radius_m == pytest.approx((0.12 * 0.015 + 0.12 * 0.014 + 0.11 * 0.013) / 0.35)
+    # what [estimator] says wins; the rig's arm is the user's to describe, the twin's arm does not apply
+    bench.write_text('[sim]\ntwin = "twin.toml"\n\n[estimator]\narm_radius_m = 0.02\n')
+    assert load_bench_config(bench).estimator_config().arm_radius_m == 0.02
+    shipped = load_bench_config().estimator_config()
+    assert (shipped.arm_length_m, round(shipped.arm_radius_m, 4)) == (0.685, 0.0243)
+    assert load_bench_config(MODELS / "bench_rig.toml").estimator_config().arm_radius_m == 0.025
+
