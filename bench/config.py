@@ -415,10 +415,8 @@ class BenchConfig:
             raise ValueError("rig: backend 'rig' needs a [rig] section with [rig.camera] (and [rig.valves] to run "
                              "experiments)")
         object.__setattr__(self, "estimator", types.MappingProxyType(dict(self.estimator)))
-        # On the twin the estimator is told the twin's arm (its config is all it knows of the geometry):
-        # length and radius come from arm.toml unless [estimator] sets them.
-        object.__setattr__(self, "_arm", _twin_tube(self.sim.twin) if self.backend == "sim" else {})
-        self.estimator_config()  # unknown keys and bad values fail on load, naming [estimator] and the key
+        # unknown keys and bad values fail on load, naming [estimator] and the key
+        EstimatorConfig.from_dict(dict(self.estimator), source="[estimator]")
 
     def estimator_config(self, mode: str | None = None, **changes: Any) -> EstimatorConfig:
         """The ``[estimator]`` table as an ``EstimatorConfig``, optionally in another mode or with changes.
@@ -426,11 +424,28 @@ class BenchConfig:
         Raises:
             ValueError: an unknown key or a bad value; the message names ``[estimator]`` and the key.
         """
-        table = {**self._arm, **self.estimator}
+        table = {**self._twin_arm(), **self.estimator}
         if mode is not None:
             table["mode"] = mode  # the file's other keys stay; the new mode's presets fill the rest
         table.update(changes)
         return EstimatorConfig.from_dict(table, source="[estimator]")
+
+    def _twin_arm(self) -> dict[str, float]:
+        """On the twin, the estimator is told the twin's arm (its config is all it knows of the geometry):
+        ``arm_length_m`` and ``arm_radius_m`` from the arm file the twin names, unless [estimator] sets
+        them; nothing on the rig. Read when first asked (a config for the rig need not find a twin).
+
+        Raises:
+            ConfigError: the twin file or its arm file is missing or bad; names this file and [sim] twin.
+        """
+        if self.backend != "sim":
+            return {}
+        if not hasattr(self, "_arm"):
+            try:
+                object.__setattr__(self, "_arm", _twin_tube(self.sim.twin))
+            except ConfigFileError as e:
+                raise ConfigError(f"{self.path}: [sim] twin: {e}") from e
+        return self._arm
 
 
 def _twin_tube(twin_toml: Path) -> dict[str, float]:

@@ -252,10 +252,22 @@ def _run_local(fn, specs: list, engine: EngineConfig, order: list[int]) -> Itera
                         yield outcome
                 pool.shutdown(wait=False, cancel_futures=True)
                 pool = futures.ProcessPoolExecutor(max_workers=workers, mp_context=context)
-    except BaseException:  # Ctrl-C, or the caller stopped reading: do not wait for the episodes under way
-        pool.shutdown(wait=False, cancel_futures=True)
+    except BaseException:  # Ctrl-C, SIGTERM, or the caller stopped reading: do not wait for the episodes under way
+        _stop_workers(pool)
         raise
     pool.shutdown(wait=True)
+
+
+def _stop_workers(pool: futures.ProcessPoolExecutor) -> None:
+    """End the pool's worker processes now, episodes under way included: left to finish, they would run
+    on, orphaned, after the study stopped (a SIGTERM reaches only the study's own process)."""
+    processes = list(getattr(pool, "_processes", {}).values())  # the executor offers no public handle
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        if process.is_alive():
+            process.terminate()
+    for process in processes:
+        process.join(timeout=5.0)
 
 
 def _succeeded(item: _Pending, specs: list, result, seconds: float, workers: int) -> Outcome:

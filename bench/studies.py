@@ -49,7 +49,16 @@ from bench.episodes import sequence_episode, sequence_spec
 from bench.frame_record import FrameRecord
 from bench.process import Capture, process
 from bench.recording import write_json
-from bench.study_files import counted, finish_study, frames_from_args, out_folder, write_results, write_study
+from bench.study_files import (
+    StudyStopped,
+    counted,
+    finish_study,
+    frames_from_args,
+    out_folder,
+    stopped_by_signals,
+    write_results,
+    write_study,
+)
 from estimator import CalibrationFileError, CenterlineEstimator, EstimatorConfig, StereoCalibration
 from estimator.centerline import centerline_nodes
 from estimator.config import CENTERLINES
@@ -106,7 +115,22 @@ _OTHER_STUDIES = {"robustness": ("bench.robustness", "robustness_command"), "swe
 
 def study_command(args) -> int:
     """Entry point of ``softarm study som|compare|robustness|sweep|accuracy [--config] [--frames N] [--out DIR]
-    [--engine local|ray] [--workers N] [--ray-address HOST:PORT]``."""
+    [--engine local|ray] [--workers N] [--ray-address HOST:PORT]``.
+
+    Ctrl-C or SIGTERM stops the study where it is (its worker processes with it) with one line and
+    the shell's exit code (130, 143); the files of a study are written at its end, so none are.
+    """
+    with stopped_by_signals() as stop:
+        try:
+            return _study(args)
+        except (KeyboardInterrupt, StudyStopped) as e:
+            name = "SIGTERM" if isinstance(e, StudyStopped) else "Ctrl-C"
+            print(f"\nsoftarm study {args.which}: stopped by {name}; the study was not finished, nothing written",
+                  file=sys.stderr)
+            return stop.exit_code(e)
+
+
+def _study(args) -> int:
     which = args.which
     if which in _OTHER_STUDIES:
         import importlib

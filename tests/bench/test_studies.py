@@ -1,6 +1,11 @@
 """``softarm study som|compare`` on two twin frames (the arm at rest and fully bent)."""
 
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
 from types import SimpleNamespace
 
 import numpy as np
@@ -190,6 +195,32 @@ def test_counts_read_as_english_and_calibrate_help_gives_its_defaults():
     text = " ".join(build_parser()._subparsers._group_actions[0].choices["calibrate"].format_help().split())
     assert f"default {DEFAULT_VIEWS['sim']} on the twin, {DEFAULT_VIEWS['rig']} on the rig" in text
     assert "default runs/calibration_<timestamp>.toml" in text
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_stops_the_study_and_its_workers_with_one_line(tmp_path, sig):
+    """The reported cases: SIGTERM ended the study's process at once and left its two worker processes
+    running on their own for over a minute; Ctrl-C printed a KeyboardInterrupt traceback."""
+    out = tmp_path / "study"
+    study = subprocess.Popen([sys.executable, "-m", "bench.cli", "study", "robustness", "--conditions", "lab", "clean",
+                              "--frames", "60", "--workers", "2", "--out", str(out)], cwd=tmp_path,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    line = study.stdout.readline()  # the study says it starts once its options are checked
+    assert "2 conditions x 60 frames" in line, line
+    time.sleep(4.0)  # the episodes are under way in the workers
+    study.send_signal(sig)
+    _, err = study.communicate(timeout=60)
+    name = "SIGTERM" if sig == signal.SIGTERM else "Ctrl-C"
+    assert study.returncode == 128 + sig and f"stopped by {name}; the study was not finished" in err, err
+    assert "Traceback" not in err and not out.exists()
+    deadline = time.monotonic() + 10.0
+    while True:  # every process of its session (the workers) is gone
+        try:
+            os.killpg(study.pid, 0)
+        except ProcessLookupError:
+            break
+        assert time.monotonic() < deadline, "worker processes outlived the study"
+        time.sleep(0.2)
 
 
 def _figures_saved(monkeypatch) -> list:
