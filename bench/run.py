@@ -59,6 +59,7 @@ from bench.recording import (
     writable_folder,
 )
 from bench.scoring import invalid_lines, summary_table
+from bench.signals import Terminated, sigterm_raises, stopped_by
 from bench.worker import FrameWorker
 from estimator import CalibrationFileError, CenterlineEstimator, EstimatorConfig
 from hardware.errors import DeviceError, EndOfStreamError, SimulationError
@@ -302,11 +303,13 @@ def _write_report(folder: Path, options: RunOptions, outcome: RunOutcome) -> int
 
     start = time.perf_counter()
     try:
-        write_report(folder, progress=options.progress)
-    except KeyboardInterrupt:
-        print(f"\nsoftarm run: report interrupted; the run folder is complete; write the report with: "
+        with sigterm_raises():
+            write_report(folder, progress=options.progress)
+    except (KeyboardInterrupt, Terminated) as e:
+        name, code = stopped_by(e)
+        print(f"\nsoftarm run: report stopped by {name}; the run folder is complete; write the report with: "
               f"softarm report {folder}", file=sys.stderr)
-        return _SIGNAL_EXIT[signal.SIGINT]
+        return code
     except Exception as e:  # noqa: BLE001 - the run is recorded; a failing report must not hide that
         print(f"softarm run: the report failed ({type(e).__name__}: {e}); the run folder is complete; "
               f"try again with: softarm report {folder}", file=sys.stderr)

@@ -49,13 +49,12 @@ from bench.episodes import sequence_episode, sequence_spec
 from bench.frame_record import FrameRecord
 from bench.process import Capture, process
 from bench.recording import write_json
+from bench.signals import Terminated, sigterm_raises, stopped_by
 from bench.study_files import (
-    StudyStopped,
     counted,
     finish_study,
     frames_from_args,
     out_folder,
-    stopped_by_signals,
     write_results,
     write_study,
 )
@@ -120,14 +119,14 @@ def study_command(args) -> int:
     Ctrl-C or SIGTERM stops the study where it is (its worker processes with it) with one line and
     the shell's exit code (130, 143); the files of a study are written at its end, so none are.
     """
-    with stopped_by_signals() as stop:
+    with sigterm_raises():
         try:
             return _study(args)
-        except (KeyboardInterrupt, StudyStopped) as e:
-            name = "SIGTERM" if isinstance(e, StudyStopped) else "Ctrl-C"
+        except (KeyboardInterrupt, Terminated) as e:
+            name, code = stopped_by(e)
             print(f"\nsoftarm study {args.which}: stopped by {name}; the study was not finished, nothing written",
                   file=sys.stderr)
-            return stop.exit_code(e)
+            return code
 
 
 def _study(args) -> int:

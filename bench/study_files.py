@@ -12,13 +12,10 @@ wall time and episodes per second. A local and a Ray run of the same study give 
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import math
 import platform
-import signal
 import sys
-import threading
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -57,34 +54,6 @@ def out_folder(args, config, which: str) -> Path:
 
         return writable_folder(Path(args.out), "--out")
     return new_run_folder(config.recording.runs_root(), f"study_{which}_{time.strftime('%Y-%m-%d_%H%M%S')}")
-
-
-class StudyStopped(BaseException):
-    """SIGTERM arrived while a study ran (a BaseException, like KeyboardInterrupt: nothing may swallow it)."""
-
-
-class _Signals:
-    """What ``stopped_by_signals`` hands over: the exit code a stop by each signal gets."""
-
-    @staticmethod
-    def exit_code(stop: BaseException) -> int:
-        return 128 + (signal.SIGTERM if isinstance(stop, StudyStopped) else signal.SIGINT)
-
-
-@contextlib.contextmanager
-def stopped_by_signals():
-    """SIGTERM raises ``StudyStopped`` in the main thread while the block runs (Python's default would end
-    the process at once and leave the study's worker processes running on their own)."""
-    def stop(signum, frame):
-        raise StudyStopped()
-
-    main = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGTERM, stop) if main else None
-    try:
-        yield _Signals()
-    finally:
-        if main:
-            signal.signal(signal.SIGTERM, previous)
 
 
 def counted(n: int, noun: str) -> str:

@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 import bench.factory
 import bench.recording
@@ -159,14 +160,16 @@ sys.exit(main(sys.argv[2:]))
 """
 
 
-def test_ctrl_c_during_the_report_stops_only_the_report(rig_folder, board, tmp_path):
+@pytest.mark.parametrize(("signum", "name"), [(signal.SIGINT, "Ctrl-C"), (signal.SIGTERM, "SIGTERM")])
+def test_a_signal_during_the_report_stops_only_the_report(rig_folder, board, tmp_path, signum, name):
+    """SIGTERM as Ctrl-C: it ended the process without a word, an empty report/ left behind (reported)."""
     out = rig_folder / "run"
     started = tmp_path / "report-started"
     config = rig_config(rig_folder, board.port)
     code, stdout, stderr = interrupt_child(["-c", REPORT_CHILD, str(started), "run", "--config", str(config),
-                                            "--out", str(out)], started.exists, timeout_s=60)
-    assert code == 130, stderr
-    assert "report interrupted" in stderr and f"softarm report {out}" in stderr
+                                            "--out", str(out)], started.exists, signum, timeout_s=60)
+    assert code == 128 + signum, stderr
+    assert f"report stopped by {name}; the run folder is complete" in stderr and f"softarm report {out}" in stderr
     assert "stopping: venting the valves" not in stderr  # the run's handler was gone: the run had ended
     run = load_run(out)
     assert run.complete and run.summary["stopped"] is None and len(run.frames) >= 1
