@@ -479,7 +479,12 @@ class TwinArchive(FrameArchive):
         return images if depth is None else {**images, "depth": quantize_depth(depth)}
 
     def describe(self) -> dict[str, Any]:
-        return {"sensor": self.camera.effects.as_dict()}
+        out: dict[str, Any] = {"sensor": self.camera.effects.as_dict()}
+        scene = getattr(self.camera, "scene", None)
+        if scene is not None:  # which lab the twin rendered: a run folder says what it was measured in
+            out["scene"] = {"preset": scene.preset, "seed": int(scene.seed), "description": scene.description,
+                            "file": None if scene.source is None else str(scene.source)}
+        return out
 
     def expected_bytes(self, recording, image_size: tuple[int, int], *, compare: bool) -> float:
         scene = getattr(self.camera, "scene", None)

@@ -605,6 +605,11 @@ def _write_markdown(run: Run, compensation: dict | None, written: Mapping[str, s
     lines.append(f"- backend: **{run.backend}**; estimator mode: **{s.get('mode')}**"
                  + (f", 2D centerline: **{s['centerline']}**" if s.get("centerline") else "")
                  + (" (paper mode compared on every frame)" if "paper" in s else ""))
+    scene = run.section("scene")
+    if scene:
+        lines.append(f"- twin scene: **{scene.get('preset')}** (seed {scene.get('seed')}"
+                     + (f", {scene['file']}" if scene.get("file") else "") + ")"
+                     + (f": {scene['description']}" if scene.get("description") else ""))
     if schedule:
         try:
             levels = np.asarray(schedule.get("levels_bar", [[0]]), dtype=float)

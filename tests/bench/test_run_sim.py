@@ -12,7 +12,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from bench.config import load_bench_config
+from bench.config import MODELS, load_bench_config
 from bench.recording import load_run
 from bench.replay import replay, replay_command, replay_estimator_config
 from bench.report import write_report
@@ -164,6 +164,18 @@ def test_a_replay_with_another_centerline_stage_says_which(sim_run, tmp_path, ca
     assert replayed.summary["mode"] == "paper" and replayed.summary["centerline"] == "skeleton"
     report = write_report(tmp_path / "skeleton", options={"video": False, "compensation_frames": 0})
     assert "estimator mode: **paper**, 2D centerline: **skeleton**" in (report / "summary.md").read_text()
+
+
+def test_the_run_folder_says_which_scene_and_which_arm_the_twin_showed(sim_run):
+    """The reported case: a run in a custom lab scene recorded neither its preset nor its seed, and the
+    estimator's arm came from its defaults, not from the twin's arm."""
+    config = json.loads((sim_run.folder / "config.json").read_text())
+    assert config["scene"] == {"preset": "clean", "seed": 0, "description": config["scene"]["description"],
+                               "file": str(MODELS / "scene.toml")}
+    main = config["estimators"]["main"]
+    assert main["arm_length_m"] == pytest.approx(0.685) and main["arm_radius_m"] == pytest.approx(0.02435, abs=1e-5)
+    report = write_report(sim_run.folder, options={"video": False, "compensation_frames": 0})
+    assert "- twin scene: **clean** (seed 0, " in (report / "summary.md").read_text()
 
 
 def test_the_run_times_its_parts(sim_run):
