@@ -154,6 +154,14 @@ def test_an_unknown_condition_names_the_scene_files_presets(tmp_path, capsys):
     assert not (tmp_path / "s").exists()
 
 
+def test_a_condition_given_twice_is_refused(tmp_path, capsys):
+    """Reported: it ran twice and study.json, keyed by condition, kept one of the two."""
+    args = SimpleNamespace(which="robustness", config=None, frames=2, out=str(tmp_path / "s"),
+                           conditions=["clean", "lab", "clean"], engine="local", workers=1, ray_address=None)
+    assert robustness_command(args) == 2
+    assert "--conditions: clean given more than once" in capsys.readouterr().err and not (tmp_path / "s").exists()
+
+
 @pytest.mark.parametrize("frames", [0, 1001])
 def test_frames_out_of_range_are_refused(tmp_path, capsys, frames):
     args = SimpleNamespace(which="robustness", config=None, frames=frames, out=str(tmp_path / "s"))
