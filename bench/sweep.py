@@ -244,13 +244,22 @@ def rank(scores: Sequence[Mapping], grid: Grid) -> list[Mapping]:
     return sorted(scores, key=key)
 
 
+def check_grid_presets(grid: Grid, specs: list) -> None:
+    """Raise ``ConfigFileError`` naming the grid file's ``[scenes] presets`` (and the scene file's presets)
+    for a preset the scene file does not define: before any episode runs."""
+    for preset in grid.presets:
+        try:
+            twin_config(dataclasses.replace(specs[0], preset=preset))
+        except ConfigFileError as e:
+            raise ConfigFileError(f"{grid.path} [scenes] presets: {preset!r}: {e}") from e
+
+
 def sweep_study(config: BenchConfig, grid: Grid, out: Path, engine: EngineConfig | None = None, *,
                 progress: bool = True) -> dict[str, Any]:
     """Run the sweep and write its files; returns the settings' scores (best first) and a headline."""
     engine = engine or EngineConfig()
     settings, specs = sweep_specs(config, grid)
-    for preset in grid.presets:
-        twin_config(dataclasses.replace(specs[0], preset=preset))  # an unknown preset fails before any episode
+    check_grid_presets(grid, specs)
     start = time.perf_counter()
     outcomes = run_episodes(sequence_episode, specs, engine, label="sweep", progress=progress)
     wall_s = time.perf_counter() - start
@@ -348,6 +357,7 @@ def sweep_command(args) -> int:
             if not 1 <= args.frames <= 1000:
                 raise ValueError(f"--frames {args.frames}: expected 1 to 1000 frames per episode")
             grid = dataclasses.replace(grid, frames=int(args.frames))
+        check_grid_presets(grid, sweep_specs(config, grid)[1])  # a typo in the grid, like any bad option
         out = out_folder(args, config, "sweep")
     except (ConfigError, ConfigFileError, ValueError) as e:
         print(f"softarm study sweep: {e}", file=sys.stderr)

@@ -107,3 +107,8 @@ def test_the_command_refuses_a_bad_grid_before_running_anything(tmp_path, capsys
     assert "som_alfa0" in capsys.readouterr().err and not out.exists()
     assert sweep_command(SimpleNamespace(which="sweep", grid=None, out=str(out))) == 2
     assert "--grid FILE.toml is required" in capsys.readouterr().err
+    # a preset the scene file lacks is the grid's typo: named there, and said before anything runs
+    path = _grid(tmp_path, '[sweep]\n[scenes]\npresets = ["lab", "nosuch"]\n[estimator]\nsom_alpha0 = [0.1]\n')
+    assert sweep_command(SimpleNamespace(which="sweep", grid=str(path), out=str(out), frames=None)) == 2
+    err = capsys.readouterr().err
+    assert f"{path} [scenes] presets: 'nosuch': " in err and "unknown preset 'nosuch'" in err and not out.exists()
