@@ -421,9 +421,12 @@ def _parse_preset(path: Path, name: str, table: dict, seed: int) -> LabScene:
         if kind == "image":
             image = wall.take("image", _text)
             image = Path(image) if Path(image).is_absolute() else path.parent / image
+            if not image.is_file():  # said here, not by OpenCV's own warning first
+                raise ConfigFileError(f"{path}: [preset.{name}.backdrop] image: {image} "
+                                      + ("is a folder, not an image" if image.is_dir() else "does not exist"))
             if cv2.imread(str(image), cv2.IMREAD_COLOR) is None:
                 raise ConfigFileError(f"{path}: [preset.{name}.backdrop] image: cannot read {image} as an image "
-                                      "(missing, unreadable or not an image format OpenCV knows)")
+                                      "(unreadable, or not an image format OpenCV knows)")
         floor = None
         floor_z = wall.take("floor_z_m", number(-5.0, 0.0), None)
         floor_table = wall.sub("floor", required=False)

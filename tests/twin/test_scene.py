@@ -399,6 +399,8 @@ def test_an_unreadable_backdrop_image_names_the_path(tmp_path, kind):
             load_scene(path, preset)
         message = str(info.value)
         assert message.startswith(str(path)) and str(target) in message and "[preset.p.backdrop]" in message
+        said = {"missing": "does not exist", "directory": "is a folder, not an image"}.get(kind, "cannot read")
+        assert said in message
 
 
 def test_twin_config_with_an_unknown_scene_preset_fails_at_load(tmp_path):
