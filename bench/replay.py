@@ -151,6 +151,7 @@ def replay(run: Run, config: EstimatorConfig, out: Path, *, progress: bool = Fal
             bar.close()
         summary = summarize_run(records, {"backend": run.backend, "estimators": {"main": config.as_dict()}},
                                 wall_s=time.perf_counter() - start)
+        summary.pop("fps_loop", None)  # nothing was captured: the loop's rate means nothing here
         summary.update({"replay_of": str(run.path.resolve()), "skipped_frames": len(skipped), "skipped": skipped,
                         "ground_truth": run.has_ground_truth, "depth_source": run.summary.get("depth_source")})
         writer.finish(summary)

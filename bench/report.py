@@ -307,7 +307,8 @@ def _fig12(run: Run, compensation: dict | None, path: Path) -> str:
             ax.grid(True, which="both", alpha=0.3)
         axes[0][col].set_title("against the exact backbone" if kind == "exact"
                                else "against Q' (depth at the left centerline pixels, the paper's measure)")
-        axes[-1][col].set_xlabel("time (s)")
+        axes[-1][col].set_xlabel(f"time (s); errors under {_LOG_FLOOR_MM:g} mm (an exact 0) are drawn at "
+                                 f"{_LOG_FLOOR_MM:g} mm")
     axes[0][0].legend(fontsize=7, loc="upper left")
     if len(columns) > 1:
         axes[0][1].legend(fontsize=7, loc="upper left")
@@ -498,8 +499,11 @@ def _fig10ab(run: Run, count: int, path: Path) -> str:
         contours_img, lines_img = contours_img[y0:y1, x0:x1], lines_img[y0:y1, x0:x1]
     aspect = contours_img.shape[0] / max(contours_img.shape[1], 1)
     fig, axes = plt.subplots(1, 2, figsize=(12, max(3.5, min(12.0, 6 * aspect + 0.8))))
+    # The paper mode's left_uv are the SOM's nodes (W_L); the default mode's, the 3D estimate projected back.
+    lines_title = ("(b) 2D centerlines W_L (left image)" if cfg.mode == "paper"
+                   else "(b) the 3D centerline projected into the left image")
     for ax, image, title in ((axes[0], contours_img, "(a) segmentation contours during the motion"),
-                             (axes[1], lines_img, "(b) 2D centerlines W_L (left image)")):
+                             (axes[1], lines_img, lines_title)):
         ax.imshow(cv2.cvtColor(image, cv2.COLOR_BGR2RGB))
         ax.set_title(title)
         ax.axis("off")
@@ -605,6 +609,8 @@ def _write_markdown(run: Run, compensation: dict | None, written: Mapping[str, s
     lines.append(f"- backend: **{run.backend}**; estimator mode: **{s.get('mode')}**"
                  + (f", 2D centerline: **{s['centerline']}**" if s.get("centerline") else "")
                  + (" (paper mode compared on every frame)" if "paper" in s else ""))
+    if s.get("replay_of"):
+        lines.append(f"- a replay of the run {s['replay_of']} (its recorded frames estimated again)")
     scene = run.section("scene")
     if scene:
         lines.append(f"- twin scene: **{scene.get('preset')}** (seed {scene.get('seed')}"
@@ -638,7 +644,10 @@ def _write_markdown(run: Run, compensation: dict | None, written: Mapping[str, s
               "RMSE of each component of the residual to the closest backbone point.",
               "- *Q'*: the paper's measure (section 5.3): per-axis RMSE against the depth camera's 3D points at "
               "the left centerline pixels. The depth is that of the tube's surface, so Q' lies about one tube "
-              "radius in front of the axis; its z error carries that offset (about 25 mm here), in the paper as here.",
+              f"radius in front of the axis and its z error carries that offset{_radius_words(run)}. The paper's "
+              "Table 2 z (5.5 mm) leaves no room for such an offset; the paper does not say how its Q' avoided it "
+              "(README, the ambiguity table). The row is the estimate as returned; for the paper mode, Table 2 "
+              "the paper's way (its unsmoothed nodes) follows below.",
               "- Whole-run figures pool frames like Table 2: root of the mean squared per-frame RMSE over valid "
               "frames. Table 3's maximum error is the worst per-axis RMSE (5.5122 mm -> 5.5/680).",
               "- fps: 1 / the median estimator time per frame on this machine (the paper: about 10 fps "
@@ -744,7 +753,15 @@ def _speed_lines(compensation: dict | None) -> list[str]:
     return ["", "## Paper mode speed (Fig 13)", "",
             "| paper mode | fps (1 / median time per frame) |", "|---|---|",
             f"| compiled SOM | {_num(s['nearest']['fps'], 1)} |", f"| numpy SOM (the paper's speed class) | "
-            f"{_num(s['numpy']['fps'], 1)} |", f"| Zou et al. | about {PAPER['fps']:g} |"]
+            f"{_num(s['numpy']['fps'], 1)} |", f"| Zou et al. | about {PAPER['fps']:g} |", "",
+            "Timed on the recorded frames with the machine to itself; during the run the estimator shared the "
+            "cores with the twin's physics and rendering, so the run's table above reads slower."]
+
+
+def _radius_words(run: Run) -> str:
+    """" (the tube's radius: 24 mm)", from the run's estimator configuration; "" where it does not say."""
+    radius = run.section("estimators", "main").get("arm_radius_m")
+    return f" (the tube's radius here: {1000 * radius:.0f} mm)" if isinstance(radius, int | float) else ""
 
 
 def _num(value, decimals: int = 2) -> str:

@@ -8,7 +8,8 @@ Two accuracy measures, side by side:
   ``Q'_j = g(u_Lj, v_Lj)``, compared axis by axis with the estimate (Table 2). In the twin the
   depth is the renderer's exact depth of the left image; note that it is the depth of the arm's
   SURFACE at those pixels, so Q' sits about one tube radius in front of the axis the estimator
-  reconstructs: its z error has that offset built in, in the paper as here.
+  reconstructs: here its z error has that offset built in (the paper's 5.5 mm z leaves no room for it;
+  the paper does not say how its Q' avoided it).
 
 Run summaries pool frames as the paper's Table 2 does ("RMSE during the entire motion"): the
 root of the mean squared per-frame RMSE over the valid frames (every frame has the same number
@@ -197,7 +198,7 @@ def summary_table(summary: Mapping, *, label: str = "this run", paper_mode: Mapp
     rows: list[tuple[str, list[str], str]] = [
         ("valid frames", [f"{s['valid_frames']}/{s['frames']}" for s in runs], f"{p['frames']} logged"),
         ("RMSE x/y/z vs exact backbone (mm)", [_xyz(s["rmse_xyz_mm"]) for s in runs], "n/a"),
-        ("RMSE x/y/z vs Q' depth (mm), Table 2", [_xyz(s["qprime_rmse_xyz_mm"]) for s in runs],
+        ("RMSE x/y/z vs Q' depth (mm) (Zou et al.: Table 2)", [_xyz(s["qprime_rmse_xyz_mm"]) for s in runs],
          _xyz(p["rmse_xyz_mm"], 4)),
         ("3D RMSE vs exact backbone (mm)", [_num(s["rmse_mm"]) for s in runs], "n/a"),
         ("max error / length, Table 3 (worst axis RMSE)",

@@ -163,7 +163,10 @@ def test_a_replay_with_another_centerline_stage_says_which(sim_run, tmp_path, ca
     replayed = load_run(tmp_path / "skeleton")
     assert replayed.summary["mode"] == "paper" and replayed.summary["centerline"] == "skeleton"
     report = write_report(tmp_path / "skeleton", options={"video": False, "compensation_frames": 0})
-    assert "estimator mode: **paper**, 2D centerline: **skeleton**" in (report / "summary.md").read_text()
+    text = (report / "summary.md").read_text()
+    assert "estimator mode: **paper**, 2D centerline: **skeleton**" in text
+    # a replay names the run it replayed, and claims no capture loop (reported: "loop fps" on a replay)
+    assert f"- a replay of the run {sim_run.folder.resolve()}" in text and "loop fps" not in text
 
 
 def test_the_run_folder_says_which_scene_and_which_arm_the_twin_showed(sim_run):
@@ -175,7 +178,10 @@ def test_the_run_folder_says_which_scene_and_which_arm_the_twin_showed(sim_run):
     main = config["estimators"]["main"]
     assert main["arm_length_m"] == pytest.approx(0.685) and main["arm_radius_m"] == pytest.approx(0.02435, abs=1e-5)
     report = write_report(sim_run.folder, options={"video": False, "compensation_frames": 0})
-    assert "- twin scene: **clean** (seed 0, " in (report / "summary.md").read_text()
+    text = (report / "summary.md").read_text()
+    assert "- twin scene: **clean** (seed 0, " in text
+    # the Q' note reads the run's own radius, and claims nothing of the paper's Q' it cannot show (reported)
+    assert "(the tube's radius here: 24 mm)" in text and "in the paper as here" not in text
 
 
 def test_the_run_times_its_parts(sim_run):
