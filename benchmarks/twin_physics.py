@@ -45,7 +45,7 @@ def long_advance_rtf(sim: ArmSimulation, seconds: float) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--runs", type=int, default=5)
+    parser.add_argument("--runs", type=int, default=5, help="timed runs; the median is quoted (default 5)")
     parser.add_argument("--seconds", type=float, default=10.0, help="simulated seconds per run")
     parser.add_argument("--params", type=Path, default=None, help="arm parameter file (default models/arm.toml)")
     args = parser.parse_args()
