@@ -261,7 +261,8 @@ def _run_local(fn, specs: list, engine: EngineConfig, order: list[int]) -> Itera
 def _stop_workers(pool: futures.ProcessPoolExecutor) -> None:
     """End the pool's worker processes now, episodes under way included: left to finish, they would run
     on, orphaned, after the study stopped (a SIGTERM reaches only the study's own process)."""
-    processes = list(getattr(pool, "_processes", {}).values())  # the executor offers no public handle
+    # the executor offers no public handle; after a shutdown the attribute is None
+    processes = list((getattr(pool, "_processes", None) or {}).values())
     pool.shutdown(wait=False, cancel_futures=True)
     for process in processes:
         if process.is_alive():

@@ -175,6 +175,10 @@ def check_target(target: ViewTarget) -> None:
             raise ViewError(f"--rrd {rrd}: is a folder; name the recording file to write (e.g. {rrd / 'run.rrd'})")
         if not rrd.parent.resolve().is_dir():
             raise ViewError(f"--rrd {rrd}: the folder {rrd.parent} does not exist")
+        if rrd.is_symlink() and not rrd.exists():
+            raise ViewError(f"--rrd {rrd}: a link to nothing ({os.readlink(rrd)}); name a file to write")
+        if rrd.exists() and not rrd.is_file():  # a FIFO or a device: opening it to check could block
+            raise ViewError(f"--rrd {rrd}: not a regular file; name a file to write")
         existed = rrd.exists()
         try:  # a folder that exists may still refuse a new file (read-only, no permission, /proc)
             with open(rrd, "ab"):

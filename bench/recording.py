@@ -207,22 +207,22 @@ def writable_folder(path: Path, what: str) -> Path:
     Raises:
         ValueError: a file is in the way, or the folder cannot be made or written to (with the reason).
     """
-    missing = []
-    existing = path
-    while not existing.exists() and existing != existing.parent:
-        missing.append(existing)
-        existing = existing.parent
-    if not existing.is_dir():
-        raise ValueError(f"{what} {path}: {existing} is a file, not a folder")
+    missing: list[Path] = []
     probe = path / f".softarm-write-check-{os.getpid()}"
     try:
+        existing = path
+        while not existing.exists() and existing != existing.parent:
+            missing.append(existing)
+            existing = existing.parent
+        if not existing.is_dir():
+            raise ValueError(f"{what} {path}: {existing} is a file, not a folder")
         path.mkdir(parents=True, exist_ok=True)
         probe.write_bytes(b"")
         probe.unlink()
-    except OSError as e:
+    except OSError as e:  # no permission to look or to write, a read-only or special file system
         raise ValueError(f"{what} {path}: cannot be written ({e.strerror or e})") from e
     finally:
-        for folder in missing:  # made only to check: the study makes them again when it writes
+        for folder in missing:  # made only to check: the caller makes them again when it writes
             with contextlib.suppress(OSError):
                 folder.rmdir()
     return path
@@ -584,7 +584,7 @@ class Run:
         name = (record.images or {}).get(side)
         if not name or not record.clean:
             return None
-        patch = cv2.imread(str(self.path / name), cv2.IMREAD_UNCHANGED)
+        patch = cv2.imread(str(self.path / name), cv2.IMREAD_UNCHANGED) if (self.path / name).is_file() else None
         background = self._background(record.clean["background"].get(side))
         if patch is None or background is None:
             return None
@@ -598,7 +598,8 @@ class Run:
         info = record.depth
         if not info:
             return None, None
-        units = cv2.imread(str(self.path / info["path"]), cv2.IMREAD_UNCHANGED)
+        path = self.path / info["path"]
+        units = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if path.is_file() else None
         if units is None:
             return None, None
         if info.get("background"):  # the twin's: the difference from the static scene's depth

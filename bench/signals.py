@@ -29,8 +29,8 @@ def sigterm_raises() -> Iterator[None]:
     try:
         yield
     finally:
-        if main:
-            signal.signal(signal.SIGTERM, previous)
+        if main:  # a handler installed outside Python reads back as None: the default then
+            signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
 
 
 def stopped_by(stop: BaseException) -> tuple[str, int]:

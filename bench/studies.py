@@ -124,8 +124,8 @@ def study_command(args) -> int:
             return _study(args)
         except (KeyboardInterrupt, Terminated) as e:
             name, code = stopped_by(e)
-            print(f"\nsoftarm study {args.which}: stopped by {name}; the study was not finished, nothing written",
-                  file=sys.stderr)
+            print(f"\nsoftarm study {args.which}: stopped by {name}; the study was not finished (its files, "
+                  "written at its end, are missing or incomplete)", file=sys.stderr)
             return code
 
 

@@ -8,7 +8,10 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from dataclasses import dataclass, fields
+
+import numpy as np
 
 from estimator.som import ORDERS as SOM_ORDERS
 
@@ -214,9 +217,9 @@ class EstimatorConfig:
                    getattr(self, name))
         _check(self.contour_step >= 1 and self.mask_stride >= 1, "contour_step", "at least 1", self.contour_step)
         _check(self.som_epochs >= 1, "som_epochs", "at least 1", self.som_epochs)
-        _check(_number(self.canny_low) and self.canny_low >= 0, "canny_low", "a non-negative number", self.canny_low)
-        _check(_number(self.canny_high) and self.canny_high >= self.canny_low, "canny_high",
-               f"a number not below canny_low ({self.canny_low})", self.canny_high)
+        for name in ("canny_low", "canny_high"):  # OpenCV's Canny takes them in either order
+            _check(_number(getattr(self, name)) and getattr(self, name) >= 0, name, "a non-negative number",
+                   getattr(self, name))
         _check(_number(self.som_alpha0) and 0 < self.som_alpha0 <= 1, "som_alpha0", "a number in (0, 1]",
                self.som_alpha0)
         _check(self.som_sigma is None or (_number(self.som_sigma) and self.som_sigma > 0), "som_sigma",
@@ -281,8 +284,9 @@ def _int(value) -> bool:
 
 
 def _number(value) -> bool:
-    """A finite real number, not a boolean (True would read as 1, a string cannot be compared)."""
-    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+    """A finite real number (numpy's too), not a boolean (True would read as 1, a string cannot be compared)."""
+    return (isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
+            and math.isfinite(float(value)))
 
 
 def _check(ok: bool, name: str, expected: str, got) -> None:

@@ -341,10 +341,11 @@ class CenterlineEstimator:
             if len(samples) < 3:
                 raise _NoArmError(f"no arm found in the {side} image: only {len(samples)} arm samples")
         warm = self._warm[side]
+        started_over: list[bool] = []  # _trace notes here when it already traced the image cold
         try:
-            nodes, curve, width = self._trace(mask, samples, offset, side, warm, timings)
+            nodes, curve, width = self._trace(mask, samples, offset, side, warm, timings, started_over)
         except _NoArmError:
-            if warm is None or cfg.mode != "default":
+            if warm is None or cfg.mode != "default" or started_over:
                 raise
             # The last frame's chain can lead this one astray where the arm moved far since (frames
             # seconds apart): the chain crosses itself or leaves the silhouette. Started over from
@@ -364,10 +365,13 @@ class CenterlineEstimator:
                      crop, offset, edges)
 
     def _trace(self, mask: np.ndarray, samples: np.ndarray, offset: np.ndarray, side: str,
-               warm: np.ndarray | None, timings: dict) -> tuple[np.ndarray, Centerline2D | None, float]:
+               warm: np.ndarray | None, timings: dict,
+               started_over: list | None = None) -> tuple[np.ndarray, Centerline2D | None, float]:
         """The ordered 2D centerline of one image's mask, the SOM started from ``warm`` (the last
         frame's nodes) or cold: (nodes, the refined curve or None, the arm's width in pixels or 0).
-        Nodes and curve are in rectified image pixels once refined (in the crop's without refinement)."""
+        Nodes and curve are in rectified image pixels once refined (in the crop's without refinement).
+        ``started_over`` gets an entry when the warm chain left arm pixels uncovered and the image was
+        traced cold instead."""
         cfg = self.config
         with _timed(timings, "centerline"):
             hint = self._base_hint - offset if (side == "left" and self._base_hint is not None) else None
@@ -377,6 +381,8 @@ class CenterlineEstimator:
             if (warm is not None and cfg.mode == "default" and side in self._track
                     and _uncovered(samples, nodes, self._track[side][0] * self._scale) > MAX_UNCOVERED):
                 nodes = centerline_nodes(mask, samples, cfg, warm=None, base_hint=hint)
+                if started_over is not None:
+                    started_over.append(True)
             if len(nodes) < 3:
                 raise _NoArmError(f"no centerline found in the {side} image")
         if not cfg.medial_refinement:

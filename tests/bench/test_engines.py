@@ -72,3 +72,17 @@ def test_engine_arguments_are_checked(kwargs, message):
 def test_an_unknown_engine_is_refused():
     with pytest.raises(ValueError, match="engine: expected one of local, ray, got 'dask'"):
         EngineConfig("dask")
+
+
+def test_stopping_the_workers_of_a_pool_already_shut_down_is_harmless():
+    """A signal may land between the shutdown of a broken pool and its replacement: the executor's process
+    table is None by then, and stopping must not raise on top of the interrupt (reviewed)."""
+    import multiprocessing
+    from concurrent import futures
+
+    from bench.engines import _stop_workers
+
+    pool = futures.ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+    assert pool.submit(abs, -3).result(timeout=60) == 3
+    pool.shutdown(wait=True)
+    _stop_workers(pool)

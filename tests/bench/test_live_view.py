@@ -288,6 +288,14 @@ def test_a_bad_rrd_path_is_refused_before_anything_moves(tmp_path, capsys):
         check_target(ViewTarget(rrd=Path("/proc/softarm-view-test.rrd")))
     check_target(ViewTarget(rrd=tmp_path / "ok.rrd"))  # a writable path passes and is not left behind
     assert not (tmp_path / "ok.rrd").exists()
+    # a FIFO would block the check's open; a link to nothing would be replaced by a file (reviewed)
+    os.mkfifo(tmp_path / "pipe.rrd")
+    with pytest.raises(ViewError, match="not a regular file"):
+        check_target(ViewTarget(rrd=tmp_path / "pipe.rrd"))
+    (tmp_path / "dangling.rrd").symlink_to(tmp_path / "nowhere" / "x.rrd")
+    with pytest.raises(ViewError, match="a link to nothing"):
+        check_target(ViewTarget(rrd=tmp_path / "dangling.rrd"))
+    assert (tmp_path / "dangling.rrd").is_symlink()
     args = SimpleNamespace(config=None, backend=None, mode=None, compare=False, frames=2, out=str(tmp_path / "run"),
                            no_report=True, yes=False, view=None, rrd=str(tmp_path / "missing" / "x.rrd"))
     assert run_command(args) == 2
