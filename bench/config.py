@@ -141,7 +141,9 @@ class ValvesConfig:
     """
 
     port: str
-    channels: Mapping[str, int] = field(default_factory=lambda: dict(ARM_VALVE_CHANNELS))
+    # One assignment of valves to board channels: a file's table replaces its base's whole (merged key by
+    # key, a partial map would keep the base's other valves and clash with them).
+    channels: Mapping[str, int] = field(default_factory=lambda: dict(ARM_VALVE_CHANNELS), metadata={"whole": True})
     max_pressure_bar: float = 2.5
     baud: int = DEFAULT_BAUD
     clamp: bool = False
@@ -507,7 +509,7 @@ def _read_config(path: Path, chain: tuple[Path, ...]) -> dict:
     chain = (*chain, path.resolve())
     base_data = _read_config(base, chain)
     build_section(BenchConfig, base_data, base, context={"path": base.resolve()})  # the base's errors name it
-    return _merged(_absolute_paths(BenchConfig, base_data, base.parent), data)
+    return _merged(_absolute_paths(BenchConfig, base_data, base.parent), data, BenchConfig)
 
 
 def _base_file(folder: Path):
@@ -519,11 +521,19 @@ def _base_file(folder: Path):
     return convert
 
 
-def _merged(base: dict, changes: dict) -> dict:
-    """``base`` with ``changes`` applied: tables merge key by key, every other value is replaced."""
+def _merged(base: dict, changes: dict, cls: Any = None) -> dict:
+    """``base`` with ``changes`` applied: tables merge key by key, every other value is replaced, and so is a
+    table its field (of the dataclass ``cls``) marks ``whole`` (a complete assignment such as a channel map)."""
+    fields_ = {f.name: f for f in dataclasses.fields(cls)} if dataclasses.is_dataclass(cls) else {}
+    hints = typing.get_type_hints(cls) if fields_ else {}
     out = dict(base)
     for key, value in changes.items():
-        out[key] = _merged(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
+        f = fields_.get(key)
+        if not (isinstance(value, dict) and isinstance(out.get(key), dict)) or (f and f.metadata.get("whole")):
+            out[key] = value
+            continue
+        options = [a for a in typing.get_args(hints.get(key)) if a is not type(None)] or [hints.get(key)]
+        out[key] = _merged(out[key], value, next((o for o in options if dataclasses.is_dataclass(o)), None))
     return out
 
 

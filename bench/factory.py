@@ -160,7 +160,10 @@ def _make_rig(rig: RigConfig, config_path: Path, *, valves: bool,
     camera = rig_camera(cam, config_path, calibration)
     try:
         if bank is not None:
-            bank.connect()
+            try:
+                bank.connect()
+            except DeviceError as e:  # the board, its port or its limits against this file's [rig.valves]
+                raise type(e)(f"{config_path} [rig.valves]: {e}") from e
     except BaseException:
         camera.close()
         raise

@@ -86,11 +86,20 @@ def _check_camera(config) -> tuple[list[str], BaseException | None]:
             lines.append(_INDENT + row_mismatch_line(calibration, frame))
         else:
             lines.append(f"{_INDENT}(the calibration is not measured against the camera: it could not be loaded)")
+        if _grey(frame.left):  # the estimator finds the arm by its colour
+            lines.append(f"{_INDENT}warning: the frame has no colour (grey: its three channels are equal); the "
+                         "estimator segments the arm by its colour and will find none")
     except _ERRORS as e:
         return [f"camera       {camera.mode}"], e
     finally:
         camera.close()
     return lines, None
+
+
+def _grey(image: np.ndarray) -> bool:
+    """Whether a BGR image carries no colour: its three channels equal at every pixel."""
+    return bool(image.ndim == 3 and np.array_equal(image[..., 0], image[..., 1])
+                and np.array_equal(image[..., 1], image[..., 2]))
 
 
 def _check_valves(config) -> tuple[list[str], BaseException | None]:

@@ -437,8 +437,10 @@ class SerialValveBank(ValveBank):
             raise DeviceError(f"valve board on {self._port} speaks protocol {version.protocol}, this host "
                               f"speaks {PROTOCOL_VERSION}; update the firmware or the host")
         if max(self._board_channels) >= version.channels:
-            raise DeviceError(f"valve board on {self._port} has {version.channels} channels; the channel map "
-                              f"uses board channel {max(self._board_channels)}")
+            beyond = [f"{name} on {channel}" for name, channel in zip(self.channels, self._board_channels, strict=True)
+                      if channel >= version.channels]
+            raise DeviceError(f"valve board on {self._port} has {version.channels} channels (0 to "
+                              f"{version.channels - 1}); the channel map puts {', '.join(beyond)}")
         if bar_to_mbar(self.max_pressure_bar, self.max_pressure_bar) > version.max_mbar:
             raise DeviceError(f"max_pressure_bar {self.max_pressure_bar} exceeds the limit of the valve board on "
                               f"{self._port} ({version.max_mbar / 1000} bar); lower it in the config")

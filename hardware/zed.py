@@ -320,7 +320,9 @@ class ZedCamera(StereoCamera):
         frame = self._read()
         timestamp_s = time.monotonic() if self._kind == "device" else self._index / self._mode.fps
         if frame.shape[:2] != (self._mode.frame_size[1], self._mode.frame_size[0]):
-            raise DeviceError(f"{self._source}: frame {self._index} is {frame.shape[1]}x{frame.shape[0]}, "
+            where = (self._images[self._position - 1] if self._kind == "images"  # the file, as an unreadable one is
+                     else f"{self._source}: frame {self._index} (counted from 0)")
+            raise DeviceError(f"{where} is {frame.shape[1]}x{frame.shape[0]}, "
                               f"expected {self._mode.frame_size[0]}x{self._mode.frame_size[1]}")
         half = frame.shape[1] // 2
         stereo = StereoFrame(np.ascontiguousarray(frame[:, :half]), np.ascontiguousarray(frame[:, half:]),

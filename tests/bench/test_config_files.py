@@ -79,6 +79,17 @@ def test_a_base_is_merged_table_by_table_and_keeps_its_own_relative_paths(tmp_pa
     assert config.rig.camera.source == tmp_path / "lab" / "session" and config.rig.camera.fps == 30
 
 
+def test_a_channel_map_replaces_its_bases_whole(tmp_path):
+    """Reported: a file mapping two valves kept the base's seven too, and the clash named this file for a valve
+    it never wrote ("s1_a and s1_b both use board channel 1"). Other tables still merge key by key."""
+    mine = tmp_path / "mine.toml"
+    mine.write_text(f'base = "{MODELS / "bench_rig.toml"}"\n[rig.valves]\nmax_pressure_bar = 2.0\n'
+                    '[rig.valves.channels]\ns1_a = 0\nvalve_b = 1\n')
+    valves = load_bench_config(mine).rig.valves
+    assert dict(valves.channels) == {"s1_a": 0, "valve_b": 1} and valves.max_pressure_bar == 2.0
+    assert valves.port == load_bench_config(MODELS / "bench_rig.toml").rig.valves.port  # the rest merged
+
+
 def test_a_bad_base_is_named_by_the_file_that_holds_the_error(tmp_path):
     base = tmp_path / "base.toml"
     base.write_text("[experiment]\nframs = 3\n")
@@ -157,6 +168,8 @@ def test_rig_check_prints_the_boards_unreadable_frames(tmp_path, zed_conf_dir, b
     assert rig_command(type("Args", (), {"config": str(path)})()) == 0
     out = capsys.readouterr().out
     assert f"unreadable frames (line noise) since the board started: {board.unreadable_frames}" in out, out
+    # the recording is grey: said before a run finds no arm in any frame (reported)
+    assert "warning: the frame has no colour" in out
     assert board.unreadable_frames >= 3
 
 

@@ -128,6 +128,16 @@ def test_an_out_folder_that_takes_no_file_fails_before_the_devices_open(rig_fold
     assert "fill the disk" not in err and board.frames_received == 0 and not board.commands
 
 
+def test_a_board_that_does_not_fit_the_config_names_the_file_and_section(rig_folder, board, capsys):
+    """Reported: "max_pressure_bar 3.0 exceeds the limit of the valve board ...; lower it in the config"
+    said neither which config nor where in it."""
+    path = rig_config(rig_folder, board.port, valves_max=3.0)
+    assert run_command(run_args(path, rig_folder / "run")) == 1
+    err = capsys.readouterr().err
+    assert f"{path} [rig.valves]: max_pressure_bar 3.0 exceeds the limit of the valve board" in err
+    assert "nothing was moved" in err and "SET" not in board.commands
+
+
 def test_bad_config_names_file_and_key(rig_folder, board, capsys):
     path = rig_config(rig_folder, board.port, extra="colour = \"red\"\n")
     assert run_command(run_args(path, rig_folder / "run")) == 2

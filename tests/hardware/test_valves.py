@@ -242,7 +242,8 @@ def test_estop_refuses_set_points_until_cleared(board, bank):
 
 @pytest.mark.parametrize(("kwargs", "message"), [
     ({"channels": ARM_CHANNELS, "max_pressure_bar": 3.0}, "exceeds the limit of the valve board"),
-    ({"channels": {"a": 0, "b": 9}, "max_pressure_bar": 2.5}, "uses board channel 9"),
+    ({"channels": {"a": 0, "b": 9}, "max_pressure_bar": 2.5},
+     r"has 7 channels \(0 to 6\); the channel map puts b on 9"),
     ({"channels": ARM_CHANNELS, "max_pressure_bar": 2.5, "heartbeat_s": 0.2}, "too slow for the board"),
 ])
 def test_connect_refuses_a_board_that_does_not_fit(board, kwargs, message):

@@ -114,6 +114,18 @@ def test_greyscale_images_become_three_channel_bgr(tmp_path, calib):
     assert frame.left.shape == (48, 64, 3) and np.all(frame.left == 77)
 
 
+def test_an_image_of_another_size_in_a_folder_is_named_by_its_file(tmp_path, calib):
+    """Reported: "frame 3 is 2400x720", a count from 0 the user had to map to frame_00003.png."""
+    folder = tmp_path / "session"
+    folder.mkdir()
+    for k, width in enumerate((128, 128, 120)):
+        cv2.imwrite(str(folder / f"frame_{k:05d}.png"), np.full((48, width, 3), 77, np.uint8))
+    with ZedCamera(folder, calib) as camera:
+        camera.grab(), camera.grab()
+        with pytest.raises(DeviceError, match=rf"{folder / 'frame_00002.png'} is 120x48, expected 128x48"):
+            camera.grab()
+
+
 class FakeUVC:
     """Stands in for ``cv2.VideoCapture`` on a V4L2 device: records what is requested and reads
     back what the 'hardware' granted, so the mode checks of the real driver run unchanged."""
