@@ -187,7 +187,8 @@ def compensation_study(run: Run, max_frames: int) -> dict | None:
     for estimator in estimators.values():  # compile outside the timing, then start cold as a run does
         estimator.warm_up()
     out: dict = {"frames": [], "t_s": [], **{variant: [] for variant in _VARIANTS},
-                 "table2": {variant: [] for variant in _VARIANTS}}
+                 "table2": {variant: [] for variant in _VARIANTS},
+                 "variants": {variant: dict(overrides) for variant, overrides in _VARIANTS.items()}}
     for record in picks:
         left, right = run.image(record, "left"), run.image(record, "right")
         if left is None or right is None:
@@ -224,7 +225,7 @@ def compensation_json(compensation: dict) -> dict:
             rows.append(row)
         variants[variant] = rows
     return {"frames": compensation["frames"], "t_s": compensation["t_s"], **variants,
-            "summary": compensation["summary"]}
+            "variants": compensation["variants"], "summary": compensation["summary"]}
 
 
 def table2_fields(estimate: EstimateRecord, gt_m: np.ndarray | None, depth_m: np.ndarray | None,

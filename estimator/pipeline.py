@@ -210,13 +210,21 @@ class CenterlineEstimator:
         otherwise pay about a second of compilation. Leaves the warm-start state empty.
         """
         w, h = self.calibration.image_size
+        cfg, baseline = self.config, self._rect.baseline_m
+        # A straight tube of the configured radius and length at the depth where it spans 70 % of the
+        # image's height: a frame every check accepts, so every stage (the tube fit too) runs and compiles.
+        length = cfg.arm_length_m if cfg.arm_length_m is not None else 0.6 * h * baseline / (0.1 * w)
+        disparity = min(0.1 * w, 0.7 * h * baseline / length)
+        thickness = max(int(round(2.0 * cfg.arm_radius_m * disparity / baseline)), 3)
+        span = length * disparity / baseline
         images = []
-        for side, shift in (("left", 0.0), ("right", -0.1 * w)):
+        for side, shift in (("left", 0.0), ("right", -disparity)):
             image = np.full((h, w, 3), (200, 190, 180), np.uint8)
-            top, bottom = np.array([[0.55 * w + shift, 0.2 * h]]), np.array([[0.55 * w + shift, 0.8 * h]])
-            ends = [self._rect.unrectify_points(self._rect.rectify_points(p, "left"), side)[0] for p in (top, bottom)]
+            x = 0.5 * w + 0.5 * disparity + shift
+            top, bottom = np.array([[x, 0.5 * (h - span)]]), np.array([[x, 0.5 * (h + span)]])
+            ends = [self._rect.unrectify_points(p, side)[0] for p in (top, bottom)]
             cv2.line(image, tuple(int(v) for v in ends[0]), tuple(int(v) for v in ends[1]), (20, 110, 245),
-                     max(int(0.04 * h), 3))
+                     thickness)
             images.append(image)
         self.estimate(*images)
         self.reset()

@@ -134,13 +134,13 @@ def test_clamp_tolerance_of_twin_toml_reaches_the_sim_bank(tmp_path):
                                                                                       "clamp_tolerance = 0.2"))
     config = TwinConfig.load(path)
     assert config.clamp_pressures and config.clamp_tolerance == 0.2
-    from twin.params import ArmParams as Params
-    from twin.physics import ArmSimulation
-    from twin.valves import SimValveBank
+    from twin import Twin
 
-    sim = ArmSimulation(Params.load(config.arm), timestep_s=config.timestep_s)
-    bank = SimValveBank(sim, clamp=config.clamp_pressures, clamp_tolerance=config.clamp_tolerance)
-    assert bank.clamp_tolerance_bar == pytest.approx(0.2 * sim.max_pressure_bar)
+    twin = Twin.from_config(path)  # the twin builds its own bank from the file (not this test)
+    try:
+        assert twin.valves.clamp_tolerance_bar == pytest.approx(0.2 * twin.sim.max_pressure_bar)
+    finally:
+        twin.close()
     path.write_text(path.read_text().replace("clamp_tolerance = 0.2", "clamp_tolerance = 2"))
     with pytest.raises(ConfigFileError, match=r"key \[valves\] clamp_tolerance: expected a number in \[0.0, 0.5\]"):
         TwinConfig.load(path)

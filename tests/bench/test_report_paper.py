@@ -49,7 +49,10 @@ def test_the_report_reruns_the_variants_and_computes_table_2_the_papers_way(pape
     # the numpy SOM gives the compiled SOM's estimates (to rounding), slower
     numpy = compensation["summary"]["numpy"]
     assert numpy["rmse_mm"] == pytest.approx(nearest["rmse_mm"], abs=0.01)
-    assert numpy["fps"] < nearest["fps"]
+    # which SOM each variant ran, from the report's own record (how fast each is: benchmarks/estimator_speed.py)
+    assert compensation["variants"]["numpy"]["som_compiled"] is False
+    assert compensation["variants"]["nearest"].get("som_compiled", True) is True
+    assert np.isfinite(numpy["fps"]) and numpy["fps"] > 0
     text = (report / "summary.md").read_text()
     for heading in ("## Plausibility checks", "## Misalignment compensation (Fig 12)",
                     "## Table 2 computed the paper's way", "## Paper mode speed (Fig 13)"):

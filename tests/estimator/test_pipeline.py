@@ -208,11 +208,17 @@ def test_every_centerline_stage_runs_the_full_3d_pipeline(cold_scenes, centerlin
         assert valid == 0 or rmse > 25.0
 
 
-def test_warm_up_compiles_and_leaves_no_warm_state(zed_calibration):
+def test_warm_up_compiles_and_leaves_no_warm_state(zed_calibration, monkeypatch):
+    """Warm-up runs the whole pipeline once on its synthetic pair (valid, so every stage was reached and
+    compiled), then forgets it: the first real frame starts cold."""
     for mode in ("default", "paper"):
         est = CenterlineEstimator(zed_calibration, EstimatorConfig(mode=mode))
+        results = []
+        estimate = est.estimate
+        monkeypatch.setattr(est, "estimate", lambda left, right: results.append(estimate(left, right)) or results[-1])
         est.warm_up()
-        assert all(nodes is None for nodes in est._warm.values())
+        assert len(results) == 1 and results[0].valid, results[0].reason
+        assert all(nodes is None for nodes in est._warm.values()) and est._warm_fit is None
 
 
 def test_scattered_estimates_are_invalid_not_returned(cold_scenes):

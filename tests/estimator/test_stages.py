@@ -245,7 +245,8 @@ def test_match_rows_weights_reflect_conditioning():
     right = left - [60, 0]
     disparity, weight = match_rows(left, right)
     steep = s < 0.4
-    np.testing.assert_allclose(disparity[steep & (weight > 0)], 60, atol=1e-6)
+    assert weight[steep].min() > 0  # crossing the rows steeply: every node pinned (and checked below)
+    np.testing.assert_allclose(disparity[steep], 60, atol=1e-6)
     assert np.all(weight[s > 0.6] == 0)  # along a row: no information
 
 
