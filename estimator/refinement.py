@@ -18,7 +18,6 @@ from scipy.interpolate import make_lsq_spline
 
 SAMPLE_SPACING_PX = 3.0
 END_TOLERANCE = 0.04
-MASK_GRAIN_PX = 0.5  # a binary mask's chord lengths come in half pixels
 RAGGED_SPREADS = 3.0  # a chord within this many robust spreads of its neighbours' width counts as full
 KNOT_SPACING_PX = 24.0
 
@@ -261,9 +260,6 @@ def _full_width(arc: np.ndarray, half: np.ndarray, ok: np.ndarray, tolerance: fl
     # width: the tolerance grows with that spread, measured along the whole arm.
     spread = RAGGED_SPREADS * 1.4826 * float(np.median(np.abs(half[idx] / local[idx] - 1.0)))
     allowed = np.maximum(np.where(near_end, end_tolerance, tolerance), spread) * local
-    # A mask's chord ends on half pixels: a half-width half a pixel off its neighbours' is the mask's
-    # grain, not a cut (a narrow tube: 9 px half-width at VGA, 12 px at 1.5 m at HD, where 4 % is less).
-    allowed = np.maximum(allowed, MASK_GRAIN_PX)
     return coarse & (np.abs(half - local) <= allowed)
 
 

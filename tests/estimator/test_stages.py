@@ -158,19 +158,6 @@ def test_a_ragged_silhouette_keeps_its_chords():
     assert np.max(np.abs(curve.points[curve.valid & inner, 0] - 99.5)) < 1.0
 
 
-def test_a_narrow_tubes_end_chords_survive_the_masks_half_pixel_grain():
-    """Reported at VGA (half-width 9 px): a chord by the base half a pixel wider than its neighbours failed
-    the 4 % end tolerance (0.36 px), and a tube width of base chords went with it ("the base is hidden")."""
-    from estimator.refinement import _full_width
-
-    arc = np.arange(60) * 3.0
-    half = np.where(np.arange(60) % 3 == 0, 9.5, 9.0)  # the mask's grain: every third chord half a pixel wider
-    ok = _full_width(arc, half, np.ones(60, bool))
-    assert ok.all()
-    half[30] = 7.0  # a chord cut by something across the tube is still not clean
-    assert not _full_width(arc, half, np.ones(60, bool))[30]
-
-
 def test_a_baseplate_still_withdraws_the_chords_beside_it():
     """A clean tube crossed by a wider dark ring: the chords through and beside the ring are not
     clean, whatever the spread elsewhere (the ring is a few chords, not a ragged edge)."""
