@@ -214,8 +214,12 @@ def test_warm_up_compiles_and_leaves_no_warm_state(zed_calibration, monkeypatch)
     for mode in ("default", "paper"):
         est = CenterlineEstimator(zed_calibration, EstimatorConfig(mode=mode))
         results = []
-        estimate = est.estimate
-        monkeypatch.setattr(est, "estimate", lambda left, right: results.append(estimate(left, right)) or results[-1])
+
+        def recorded(left, right, results=results, estimate=est.estimate):
+            results.append(estimate(left, right))
+            return results[-1]
+
+        monkeypatch.setattr(est, "estimate", recorded)
         est.warm_up()
         assert len(results) == 1 and results[0].valid, results[0].reason
         assert all(nodes is None for nodes in est._warm.values()) and est._warm_fit is None
