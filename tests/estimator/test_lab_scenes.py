@@ -148,6 +148,9 @@ def test_wood_behind_the_arm_is_never_taken_for_it(shelf_results):
     wrong = {name: round(s["max_mm"], 1) for name, (r, s) in shelf_results.items()
              if r.valid and s["max_mm"] > FALSE_VALID_MM}
     assert not wrong, {name: (round(s["max_mm"], 1) if r.valid else r.reason) for name, (r, s) in shelf_results.items()}
+    # and giving up is the exception: an estimator that refused every frame would pass the check above
+    valid = sum(r.valid for r, _ in shelf_results.values())
+    assert valid >= len(shelf_results) - 1, {name: r.reason for name, (r, _) in shelf_results.items() if not r.valid}
 
 
 def test_the_lab_renderer_puts_the_wall_at_its_disparity():

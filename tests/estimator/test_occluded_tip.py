@@ -52,6 +52,17 @@ def _estimate(shape: str, lab: Lab):
     return result, (score_against_backbone(result.points, scene.gt_points) if result.valid else None)
 
 
+# What an estimate may say of these frames: valid within 10 mm, or refused for what the cable does to the
+# silhouette. A refusal for another reason ("no arm found") would pass a check of validity alone.
+HONEST_REASONS = ("follows neither side", "the tip is hidden")
+
+
+def _honest(result, score) -> bool:
+    if result.valid:
+        return score["max_mm"] <= 10.0
+    return any(reason in result.reason for reason in HONEST_REASONS)
+
+
 def test_a_cable_close_beside_the_tip_does_not_leave_a_confident_wrong_tip():
     """Towards the camera, the cable 10 mm beside the axis: the tip came back valid and measured while
     79 mm off (its outline half the cable's edge). Either check refuses it now: the stretch of
@@ -59,7 +70,7 @@ def test_a_cable_close_beside_the_tip_does_not_leave_a_confident_wrong_tip():
     explain; the test fails only with both off."""
     points, _ = standard_shapes()["towards_camera"]
     result, score = _estimate("towards_camera", _along_the_tip(points, 1.0, 0.010))
-    assert not result.valid or score["max_mm"] <= 10.0, (result.reason, score and score["max_mm"])
+    assert _honest(result, score), (result.reason, score and score["max_mm"])
 
 
 @pytest.mark.parametrize("shape, side, angle", [("c_bend", 1.0, 0.0), ("c_bend", 1.0, 0.15), ("three_d", 1.0, 0.0),
@@ -72,7 +83,7 @@ def test_no_frame_is_valid_while_the_cable_along_its_tip_puts_it_far_off(shape, 
     towards_camera, the turned cable), and c_bend's tip, its outline half the cable's edge, is hidden."""
     points, _ = standard_shapes()[shape]
     result, score = _estimate(shape, _along_the_tip(points, side, 0.014, angle))
-    assert not result.valid or score["max_mm"] <= 10.0, score and round(score["max_mm"], 1)
+    assert _honest(result, score), score and round(score["max_mm"], 1)
 
 
 @pytest.mark.parametrize("shape, side", [("straight", -1.0), ("s_curve", 1.0)])
@@ -83,7 +94,7 @@ def test_a_tip_outline_the_fitted_end_cannot_explain_is_left_out(shape, side):
     fitted again without it, and the tip, now seen in neither image, counts as hidden."""
     points, _ = standard_shapes()[shape]
     result, score = _estimate(shape, _along_the_tip(points, side, 0.014))
-    assert not result.valid or score["max_mm"] <= 10.0, score and round(score["max_mm"], 1)
+    assert _honest(result, score), score and round(score["max_mm"], 1)
 
 
 @pytest.mark.parametrize("beyond_m", [-0.004, 0.0, 0.008])
@@ -94,7 +105,7 @@ def test_a_cable_across_the_tip_in_one_view_leaves_the_tip_unmeasured(beyond_m):
     now the tube is fitted to the edges alone and its tip counts as hidden."""
     points, _ = standard_shapes()["c_bend"]
     result, score = _estimate("c_bend", _across_the_tip(points, beyond_m))
-    assert not result.valid or score["max_mm"] <= 10.0, score and round(score["max_mm"], 1)
+    assert _honest(result, score), score and round(score["max_mm"], 1)
     assert not result.valid or not result.measured[-1]
 
 
