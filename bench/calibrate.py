@@ -124,6 +124,7 @@ def _calibrate_sim(config, args, board: BoardSpec, n_views: int, out: Path) -> i
 
 def _calibrate_rig(config, args, board: BoardSpec, n_views: int, out: Path) -> int:
     from bench.factory import make_devices, nominal_calibration, rig_calibration
+    from bench.study_files import counted
     from estimator.calibration import CalibrationFileError
     from hardware.errors import DeviceError, EndOfStreamError
 
@@ -153,8 +154,8 @@ def _calibrate_rig(config, args, board: BoardSpec, n_views: int, out: Path) -> i
             except EndOfStreamError:
                 break
             except DeviceError as e:
-                print(f"\nsoftarm calibrate: {config.path} [rig.camera] source: {e}; stopped after {seen} frames "
-                      f"({len(kept)} views), nothing calibrated", file=sys.stderr)
+                print(f"\nsoftarm calibrate: {config.path} [rig.camera] source: {e}; stopped after "
+                      f"{counted(seen, 'frame')} ({counted(len(kept), 'view')}), nothing calibrated", file=sys.stderr)
                 return 1
             seen += 1
             found = detect_pair(frame.left, frame.right, board)

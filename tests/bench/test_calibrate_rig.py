@@ -53,8 +53,8 @@ def test_a_camera_that_fails_mid_way_is_named_by_its_key(tmp_path, capsys):
     out = tmp_path / "c.toml"
     assert calibrate_command(args(config, out=str(out))) == 1
     err = capsys.readouterr().err
-    assert f"{config.resolve()} [rig.camera] source: " in err and "frame 1 is 100x40" in err
-    assert "stopped after 1 frames" in err and not out.exists()
+    assert f"{config.resolve()} [rig.camera] source: " in err and f"{folder / '0001.png'} is 100x40" in err
+    assert "stopped after 1 frame (0 views)" in err and not out.exists()
 
 
 @pytest.mark.parametrize("views", [0, -3])
