@@ -182,6 +182,7 @@ class CenterlineEstimator:
         self._track: dict[str, tuple[float, int]] = {}  # side -> (width, area) of the arm in the coarse mask
         self._gate_low = tuple(self.config.hsv_low)  # the colour gate's lower bound (saturation may adapt)
         self._colour = ArmColourModel()
+        self._updates = 0  # frames the colour model has been offered (it learns from every one of the first ten)
         self._radius: np.ndarray | None = None  # the tube's radius profile, learned over frames
         self._radius_info: np.ndarray | None = None
         self._last_fit: TubeFit | None = None
@@ -197,6 +198,7 @@ class CenterlineEstimator:
         self._track = {}
         self._gate_low = tuple(self.config.hsv_low)
         self._colour.reset()
+        self._updates = 0
         self._base.reset()
         self._warm_fit = None
         self._moving_fast = False  # the last frame's tube needed its second start
@@ -519,7 +521,7 @@ class CenterlineEstimator:
         included (blurred or shadowed edges mix the arm's colour with the background's and must stay
         the arm's), a distractor bulging out of the silhouette excluded.
         """
-        self._updates = getattr(self, "_updates", 0) + 1
+        self._updates += 1
         if self._updates > 10 and self._updates % 5:  # learn every frame at first, then every fifth
             return
         for side in SIDES:
