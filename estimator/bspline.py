@@ -99,9 +99,17 @@ def fit_control_points(points: np.ndarray, count: int) -> tuple[np.ndarray, np.n
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
     us = arc / max(arc[-1], 1e-12)
     knots = clamped_knots(count)
-    A = np.zeros((len(us), count))
-    for i, u in enumerate(us):
-        first, values, _ = basis(knots, count, u)
-        A[i, first:first + DEGREE + 1] = values
+    A = _design(knots, count, us)
     control, *_ = np.linalg.lstsq(A, points, rcond=None)
     return knots, control
+
+
+@numba.njit(cache=True, nogil=True)
+def _design(knots, count, us):
+    """(M, count) the basis functions' values at every u: a least-squares fit's design matrix."""
+    A = np.zeros((us.shape[0], count))
+    for i in range(us.shape[0]):
+        first, values, _ = basis(knots, count, us[i])
+        for j in range(DEGREE + 1):
+            A[i, first + j] = values[j]
+    return A

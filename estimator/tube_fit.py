@@ -30,6 +30,7 @@ deviation, which, with the residuals, decides whether the frame is trusted.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -120,22 +121,34 @@ class TubeFit:
     def point_std_m(self, us: np.ndarray) -> np.ndarray:
         """(M,) standard deviation of each axis point across the axis, along its least certain
         direction, metres. Sliding along the axis is left out: it moves no point off the curve."""
-        count = len(self.control)
-        m = len(us)
         if not np.all(np.isfinite(self.covariance)):
-            return np.full(m, math.inf)  # a fit that knows nothing (no edge within a pixel)
-        S = np.empty((m, 3, 3))
-        tangents = np.empty((m, 3))
-        for i, u in enumerate(us):
-            first, values, deriv = basis(self.knots, count, float(u))
-            block = self.covariance[3 * first:3 * (first + DEGREE + 1), 3 * first:3 * (first + DEGREE + 1)]
-            W = np.kron(values[None, :], np.eye(3))  # (3, 12): the point is a weighted sum of 4 control points
-            S[i] = W @ block @ W.T
-            tangents[i] = deriv @ self.control[first:first + DEGREE + 1]
+            return np.full(len(us), math.inf)  # a fit that knows nothing (no edge within a pixel)
+        S, tangents = _point_covariances(self.knots, self.control, self.covariance, np.asarray(us, np.float64))
         tangents /= np.maximum(np.linalg.norm(tangents, axis=1, keepdims=True), 1e-12)
         across = np.eye(3)[None] - tangents[:, :, None] * tangents[:, None, :]
         S = across @ S @ across
         return np.sqrt(np.maximum(np.linalg.eigvalsh(S)[:, -1], 0.0))
+
+
+@numba.njit(cache=True, nogil=True)
+def _point_covariances(knots, control, covariance, us):
+    """(M, 3, 3) covariance of the axis point at each u (a weighted sum of four control points, so
+    a weighted sum of their covariance blocks) and (M, 3) the axis's derivative there."""
+    count = control.shape[0]
+    m = us.shape[0]
+    S = np.zeros((m, 3, 3))
+    tangents = np.zeros((m, 3))
+    for i in range(m):
+        first, values, deriv = basis(knots, count, us[i])
+        for a in range(DEGREE + 1):
+            for c in range(3):
+                tangents[i, c] += deriv[a] * control[first + a, c]
+            for b in range(DEGREE + 1):
+                w = values[a] * values[b]
+                for c in range(3):
+                    for d in range(3):
+                        S[i, c, d] += w * covariance[3 * (first + a) + c, 3 * (first + b) + d]
+    return S, tangents
 
 
 # --- residuals --------------------------------------------------------------------------------
@@ -528,20 +541,107 @@ def _attach(knots, control, baseline, sides, centres, samples):
     return out
 
 
-def _base_rows(control: np.ndarray, point: np.ndarray, direction: np.ndarray,
-               count: int) -> tuple[np.ndarray, np.ndarray]:
-    """Whitened residuals and Jacobian rows of the base priors: P0 at the point, P1 - P0 along the direction."""
-    rows = np.zeros((6, 3 * count))
+@numba.njit(cache=True, nogil=True)
+def _base_prior(control, point, direction):
+    """Whitened residuals (6,) of the base priors (P0 at the point, P1 - P0 along the direction) and
+    the two non-zero coefficients of each one's Jacobian row: on P0's and on P1's coordinate."""
     res = np.empty(6)
-    chord = control[1] - control[0]
-    length = max(float(np.linalg.norm(chord)), 1e-9)
+    on_p0 = np.empty(6)
+    on_p1 = np.zeros(6)
+    length = 0.0
     for c in range(3):
-        rows[c, c] = 1.0 / BASE_SIGMA_M
+        length += (control[1, c] - control[0, c]) ** 2
+    length = max(math.sqrt(length), 1e-9)
+    for c in range(3):
+        on_p0[c] = 1.0 / BASE_SIGMA_M
         res[c] = (control[0, c] - point[c]) / BASE_SIGMA_M
-        rows[3 + c, c] = -1.0 / (length * BASE_DIRECTION_SIGMA)
-        rows[3 + c, 3 + c] = 1.0 / (length * BASE_DIRECTION_SIGMA)
-        res[3 + c] = (chord[c] / length - direction[c]) / BASE_DIRECTION_SIGMA
-    return rows, res
+        on_p0[3 + c] = -1.0 / (length * BASE_DIRECTION_SIGMA)
+        on_p1[3 + c] = 1.0 / (length * BASE_DIRECTION_SIGMA)
+        res[3 + c] = ((control[1, c] - control[0, c]) / length - direction[c]) / BASE_DIRECTION_SIGMA
+    return res, on_p0, on_p1
+
+
+@numba.njit(cache=True, nogil=True)
+def _system(bases, control, radii, bins, baseline, focal, kinds, sides, xs, ys, extras, sigmas, huber, want_system,
+            smooth, smooth_normal, radius_prior, prior_w, base_point, base_direction):
+    """``_normal_equations`` with the priors added: the control points' third differences
+    (``smooth``, pre-scaled by its weight, and its normal matrix), each radius bin's, and the base's
+    (where ``base_point`` is finite). Compiled whole: called about twenty times a frame, the priors'
+    small numpy steps cost as much as the edges."""
+    cost, residuals, A, g = _normal_equations(bases, control, radii, bins, baseline, focal, kinds, sides, xs, ys,
+                                              extras, sigmas, huber, want_system)
+    count = control.shape[0]
+    n3 = 3 * count
+    sx = np.zeros(smooth.shape[0])
+    for i in range(smooth.shape[0]):
+        for j in range(n3):
+            sx[i] += smooth[i, j] * control[j // 3, j % 3]
+        cost += sx[i] * sx[i]
+    for k in range(radii.shape[0]):
+        dr = radii[k] - radius_prior[k]
+        cost += prior_w[k] * dr * dr
+        if want_system:
+            A[n3 + k, n3 + k] += prior_w[k]
+            g[n3 + k] += prior_w[k] * dr
+    if want_system:
+        for i in range(n3):
+            for j in range(n3):
+                A[i, j] += smooth_normal[i, j]
+            for k in range(smooth.shape[0]):
+                g[i] += smooth[k, i] * sx[k]
+    if base_point[0] == base_point[0]:
+        # C(0) = P0 and C'(0) is along P1 - P0 on a clamped spline: both priors are (nearly) linear.
+        res, on_p0, on_p1 = _base_prior(control, base_point, base_direction)
+        for k in range(6):
+            cost += res[k] * res[k]
+        if want_system:
+            for c in range(3):
+                p0, p1 = c, 3 + c
+                a, b = on_p0[c], on_p0[3 + c]
+                e = on_p1[3 + c]
+                # rows c (on P0 only) and 3 + c (on P0 and P1) of the prior's Jacobian
+                A[p0, p0] += a * a + b * b
+                A[p0, p1] += b * e
+                A[p1, p0] += b * e
+                A[p1, p1] += e * e
+                g[p0] += a * res[c] + b * res[3 + c]
+                g[p1] += e * res[3 + c]
+    return cost, residuals, A, g
+
+
+@numba.njit(cache=True, nogil=True)
+def _damped_step(A, g, cost, damping, bases, control, radii, bins, baseline, focal, kinds, sides, xs, ys, extras,
+                 sigmas, huber, smooth, smooth_normal, radius_prior, prior_w, base_point, base_direction):
+    """One Levenberg-Marquardt step: the damping raised until a step lowers the cost.
+
+    Returns (status, control, radii, new cost, damping): status 1 when a step was taken, 0 when
+    none lowered the cost before the damping ran out, -1 when the system is singular."""
+    n = g.shape[0]
+    count = control.shape[0]
+    H = np.empty((n, n))
+    while True:
+        for i in range(n):
+            for j in range(n):
+                H[i, j] = A[i, j]
+            H[i, i] = A[i, i] + damping * (A[i, i] + 1e-12)
+        try:
+            step = np.linalg.solve(H, g)
+        except Exception:  # noqa: BLE001 - numba raises LinAlgError as a plain exception here
+            return -1, control, radii, cost, damping
+        new_control = control.copy()
+        for k in range(count):
+            for c in range(3):
+                new_control[k, c] -= step[3 * k + c]
+        new_radii = np.empty(radii.shape[0])
+        for k in range(radii.shape[0]):
+            new_radii[k] = min(max(radii[k] - step[3 * count + k], 1e-4), 1.0)
+        new_cost = _system(bases, new_control, new_radii, bins, baseline, focal, kinds, sides, xs, ys, extras, sigmas,
+                           huber, False, smooth, smooth_normal, radius_prior, prior_w, base_point, base_direction)[0]
+        if np.isfinite(new_cost) and new_cost <= cost:
+            return 1, new_control, new_radii, new_cost, max(damping / 10.0, 1e-7)
+        damping *= 10.0
+        if damping > 1e6:
+            return 0, control, radii, cost, damping
 
 
 def arc_fraction(knots: np.ndarray, control: np.ndarray, us: np.ndarray) -> np.ndarray:
@@ -557,8 +657,10 @@ def radius_bins(knots: np.ndarray, control: np.ndarray, us: np.ndarray, count: i
     return np.minimum((arc_fraction(knots, control, us) * count).astype(np.int64), count - 1)
 
 
-def _smoothness(count: int) -> np.ndarray:
-    """(3 (count - 3), 3 count) third-difference operator on the control points.
+@functools.cache
+def _smoothness(count: int) -> tuple[np.ndarray, np.ndarray]:
+    """The third-difference prior on ``count`` control points: its (3 (count - 3), 3 count) operator,
+    scaled by its weight (1 / SMOOTH_SIGMA_M), and that operator's normal matrix. Read-only (cached).
 
     Third, not second, differences: a bend of constant curvature (how a PMA section bends) costs
     nothing, a wiggle does; where the images do not fix the depth, the axis continues its bend.
@@ -572,7 +674,10 @@ def _smoothness(count: int) -> np.ndarray:
             row = 3 * k + c
             for j, w in enumerate((-1.0, 3.0, -3.0, 1.0)):
                 S[row, 3 * (k + j) + c] = w * end
-    return S
+    w_smooth = 1.0 / SMOOTH_SIGMA_M
+    scaled, normal = S * w_smooth, (w_smooth ** 2) * (S.T @ S)
+    scaled.flags.writeable = normal.flags.writeable = False
+    return scaled, normal
 
 
 def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.ndarray, radius_prior: np.ndarray,
@@ -628,6 +733,7 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
         knots, control = fit_control_points(initial_points, control_points)
     if len(edges.side) < 12:
         return None
+    control = np.ascontiguousarray(control)
     radii = np.asarray(radius_prior if initial_radii is None else initial_radii, np.float64).copy()
     count = len(control)
     # Observations: edges, then the ends (base: no overshoot; tip: the cap's).
@@ -679,66 +785,36 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
     # Which silhouette line each edge belongs to, from the initial tube (edges lie well to one side).
     extras = np.concatenate([_edge_sides(knots, control, baseline_m, sides[:n_edges], us[:n_edges], edges.xy,
                                          edges.centre), np.array(end_extra)])
-    S = _smoothness(count)
-    w_smooth = 1.0 / SMOOTH_SIGMA_M
+    smooth, smooth_normal = _smoothness(count)
     npar = 3 * count + len(radii)
     prior_w = 1.0 / np.asarray(radius_sigma, np.float64) ** 2
+    radius_prior = np.asarray(radius_prior, np.float64)
     bins = radius_bins(knots, control, us, len(radii))
-    bases = [_bases(knots, count, us)]
+    bases = _bases(knots, count, us)
+    base_point, base_direction = ((np.full(3, np.nan), np.zeros(3)) if base_prior is None else
+                                  (np.asarray(base_prior[0], np.float64), np.asarray(base_prior[1], np.float64)))
+    loss = HUBER_PX  # Huber while the fit settles, then redescending (a negative threshold)
 
-    loss = [HUBER_PX]  # Huber while the fit settles, then redescending (a negative threshold)
-
-    def total(control_, radii_, system):
-        cost, residuals, A, g = _normal_equations(bases[0], control_, radii_, bins, baseline_m, focal_px, kinds, sides,
-                                                  xs, ys, extras, sigmas, loss[0], system)
-        x = control_.reshape(-1)
-        sx = S @ x * w_smooth
-        cost += float(sx @ sx)
-        dr = radii_ - radius_prior
-        cost += float(np.sum(prior_w * dr * dr))
-        if system:
-            A[:3 * count, :3 * count] += (w_smooth ** 2) * (S.T @ S)
-            g[:3 * count] += w_smooth * (S.T @ sx)
-            A[3 * count:, 3 * count:] += np.diag(prior_w)
-            g[3 * count:] += prior_w * dr
-        if base_prior is not None:
-            # C(0) = P0 and C'(0) is along P1 - P0 on a clamped spline: both priors are (nearly) linear.
-            point, direction = base_prior
-            rows, res = _base_rows(control_, point, direction, count)
-            cost += float(res @ res)
-            if system:
-                A[:3 * count, :3 * count] += rows.T @ rows
-                g[:3 * count] += rows.T @ res
-        return cost, residuals, A, g
+    def system(want):
+        return _system(bases, control, radii, bins, baseline_m, focal_px, kinds, sides, xs, ys, extras, sigmas, loss,
+                       want, smooth, smooth_normal, radius_prior, prior_w, base_point, base_direction)
 
     damping = 1e-4
-    cost, residuals, A, g = total(control, radii, True)
+    cost, residuals, A, g = system(True)
     for iteration in range(iterations):
-        converged = False
-        while True:
-            H = A + damping * np.diag(np.diag(A) + 1e-12)
-            try:
-                step = -np.linalg.solve(H, g)
-            except np.linalg.LinAlgError:
-                return None
-            new_control = control + step[:3 * count].reshape(count, 3)
-            new_radii = np.clip(radii + step[3 * count:], 1e-4, 1.0)
-            new_cost = total(new_control, new_radii, False)[0]
-            if np.isfinite(new_cost) and new_cost <= cost:
-                control, radii = new_control, new_radii
-                damping = max(damping / 10.0, 1e-7)
-                converged = cost - new_cost < CONVERGED * cost and iteration + 1 >= REASSIGN_AT[0]
-                break
-            damping *= 10.0
-            if damping > 1e6:
-                break
+        status, control, radii, new_cost, damping = _damped_step(
+            A, g, cost, damping, bases, control, radii, bins, baseline_m, focal_px, kinds, sides, xs, ys, extras,
+            sigmas, loss, smooth, smooth_normal, radius_prior, prior_w, base_point, base_direction)
+        if status < 0:
+            return None
+        converged = status > 0 and cost - new_cost < CONVERGED * cost and iteration + 1 >= REASSIGN_AT[0]
         if iteration + 1 in REASSIGN_AT:
             us[:n_edges] = attach(control)
             bins = radius_bins(knots, control, us, len(radii))
-            bases[0] = _bases(knots, count, us)
+            bases = _bases(knots, count, us)
         if iteration + 1 == REDESCEND_AFTER or (_staged and iteration == 0):
-            loss[0] = -HUBER_PX
-        cost, residuals, A, g = total(control, radii, True)
+            loss = -HUBER_PX
+        cost, residuals, A, g = system(True)
         if damping > 1e6 or converged:
             break
     edge_res = residuals[:n_edges]
