@@ -24,8 +24,14 @@ def clamped_knots(count: int) -> np.ndarray:
 @numba.njit(cache=True, nogil=True)
 def basis(knots, count, u):
     """(first index, values (4,), first derivatives (4,)) of the cubic basis at u in [0, 1]."""
+    return basis_at(knots, count, min(max(u, 0.0), 1.0))
+
+
+@numba.njit(cache=True, nogil=True)
+def basis_at(knots, count, u):
+    """``basis`` on any knot vector (``count`` + 4 knots, the first and last four repeated) at any u:
+    beyond the end knots, the end pieces' polynomials (extrapolation)."""
     k = DEGREE
-    u = min(max(u, 0.0), 1.0)
     span = k
     while span < count - 1 and knots[span + 1] <= u:
         span += 1

@@ -33,7 +33,7 @@ from estimator.correspondence import MIN_SINE, compensate_nodes, match_rows
 from estimator.edges import subpixel_edges, subpixel_edges_and_steps
 from estimator.mount import MountLearner
 from estimator.profile import BASE_RAMP_WIDTHS, BASE_SKIP_WIDTHS, base_ramp, measured_radius_m, with_width_cue
-from estimator.refinement import Centerline2D, edge_distance, refinement_passes
+from estimator.refinement import Centerline2D, edge_distances, refinement_passes
 from estimator.segmentation import (
     bounding_box,
     contour_points,
@@ -976,7 +976,7 @@ def _end_outline(image: np.ndarray, mask01: np.ndarray, offset: np.ndarray, curv
     half = float(curve.half_width_px[i]) if np.isfinite(curve.half_width_px[i]) else reach
     angles = np.radians(np.arange(-OUTLINE_FAN_DEG, OUTLINE_FAN_DEG + 1e-9, OUTLINE_STEP_DEG))
     directions = np.cos(angles)[:, None] * along + np.sin(angles)[:, None] * across
-    guesses = np.array([edge_distance(mask01, origin, d, 3.0 * max(half, reach) + 10.0) for d in directions])
+    guesses = edge_distances(mask01, origin, directions, 3.0 * max(half, reach) + 10.0)
     ok = guesses > 1.0
     if not ok.any():
         return np.zeros((0, 2))

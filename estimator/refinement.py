@@ -14,7 +14,8 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
-from scipy.interpolate import make_lsq_spline
+
+from estimator.spline_curve import evaluate, interpolating_spline, least_squares_spline
 
 SAMPLE_SPACING_PX = 3.0
 END_TOLERANCE = 0.04
@@ -110,11 +111,26 @@ def edge_distance(mask01: np.ndarray, start: np.ndarray, direction: np.ndarray, 
     return float(_edge_distance(mask01, float(start[0]), float(start[1]), d[0], d[1], float(max_px), 0.5))
 
 
+def edge_distances(mask01: np.ndarray, start: np.ndarray, directions: np.ndarray, max_px: float) -> np.ndarray:
+    """``edge_distance`` along each of several directions (K, 2) from one start: (K,)."""
+    d = np.asarray(directions, dtype=np.float64)
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    return _edge_distances(mask01, float(start[0]), float(start[1]), d, float(max_px), 0.5)
+
+
+@numba.njit(cache=True, nogil=True)
+def _edge_distances(mask, x, y, directions, max_px, step):
+    out = np.empty(directions.shape[0])
+    for i in range(directions.shape[0]):
+        out[i] = _edge_distance(mask, x, y, directions[i, 0], directions[i, 1], max_px, step)
+    return out
+
+
 def _arc(points: np.ndarray) -> np.ndarray:
     return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
 
 
-def _fit(arc: np.ndarray, points: np.ndarray, weights: np.ndarray, at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _fit(arc: np.ndarray, points: np.ndarray, at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares cubic spline of points(arc); returns positions and unit tangents at ``at``."""
     span = arc[-1] - arc[0]
     inner = max(int(span / KNOT_SPACING_PX) - 1, 0)
@@ -123,12 +139,16 @@ def _fit(arc: np.ndarray, points: np.ndarray, weights: np.ndarray, at: np.ndarra
     # (a knot more than half a spacing from every sample: across a long gap, consecutive empty
     # intervals make the fit ill-conditioned and the curve swings off by thousands of pixels).
     half = 0.5 * KNOT_SPACING_PX
-    keep = [k for k in knots[4:-4] if np.any((arc > k - half) & (arc < k + half))]
+    inner_knots = knots[4:-4]
+    nearest_after = np.minimum(np.searchsorted(arc, inner_knots - half, side="right"), len(arc) - 1)
+    keep = inner_knots[(arc[nearest_after] > inner_knots - half) & (arc[nearest_after] < inner_knots + half)]
     knots = np.concatenate([[arc[0]] * 4, keep, [arc[-1]] * 4])
-    spline = make_lsq_spline(arc, points, knots, k=3, w=weights)
-    tangent = spline.derivative()(at)
+    coefficients, solvable = least_squares_spline(arc, np.ascontiguousarray(points, np.float64), knots)
+    if not solvable:
+        raise ValueError("a knot interval without samples (Schoenberg-Whitney)")
+    values, tangent = evaluate(knots, coefficients, np.ascontiguousarray(at, np.float64))
     tangent /= np.linalg.norm(tangent, axis=1, keepdims=True) + 1e-12
-    return spline(at), tangent
+    return values, tangent
 
 
 def densify(nodes: np.ndarray, spacing_px: float = SAMPLE_SPACING_PX) -> tuple[np.ndarray, np.ndarray]:
@@ -143,11 +163,7 @@ def densify(nodes: np.ndarray, spacing_px: float = SAMPLE_SPACING_PX) -> tuple[n
         points = np.column_stack([np.interp(at, arc, nodes[:, k]) for k in range(2)])
         tangent = np.gradient(points, axis=0)
         return points, tangent / (np.linalg.norm(tangent, axis=1, keepdims=True) + 1e-12)
-    from scipy.interpolate import make_interp_spline
-
-    spline = make_interp_spline(arc, nodes, k=3)
-    points = spline(at)
-    tangent = spline.derivative()(at)
+    points, tangent = evaluate(*interpolating_spline(arc, nodes), at)
     return points, tangent / (np.linalg.norm(tangent, axis=1, keepdims=True) + 1e-12)
 
 
@@ -193,8 +209,8 @@ def refinement_passes(mask: np.ndarray, nodes: np.ndarray, *, extend_ends: bool 
         max_half = 2.0 * float(np.median(half[ok]))
         before = points
         try:
-            points, tangent = _fit(arc[ok], mids[ok], np.ones(ok.sum()), arc)
-        except ValueError:  # too few chords for the spline's knots (scipy's Schoenberg-Whitney check)
+            points, tangent = _fit(arc[ok], mids[ok], arc)
+        except (ValueError, np.linalg.LinAlgError):  # too few chords for the spline's knots (Schoenberg-Whitney)
             yield None
             return
         if not _follows(points, before, ok, mids, float(np.median(half[ok]))):
