@@ -10,6 +10,7 @@ silhouette stops.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numba
@@ -126,29 +127,55 @@ def _edge_distances(mask, x, y, directions, max_px, step):
     return out
 
 
-def _arc(points: np.ndarray) -> np.ndarray:
-    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+@numba.njit(cache=True, nogil=True)
+def _arc(points):
+    """Arc length from the first point at every point of a polyline."""
+    arc = np.empty(points.shape[0])
+    arc[0] = 0.0
+    for i in range(1, points.shape[0]):
+        dx = points[i, 0] - points[i - 1, 0]
+        dy = points[i, 1] - points[i - 1, 1]
+        arc[i] = arc[i - 1] + math.sqrt(dx * dx + dy * dy)
+    return arc
 
 
-def _fit(arc: np.ndarray, points: np.ndarray, at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares cubic spline of points(arc); returns positions and unit tangents at ``at``."""
+@numba.njit(cache=True, nogil=True)
+def _unit_rows(vectors):
+    out = np.empty_like(vectors)
+    for i in range(vectors.shape[0]):
+        norm = math.sqrt(vectors[i, 0] ** 2 + vectors[i, 1] ** 2) + 1e-12
+        out[i, 0] = vectors[i, 0] / norm
+        out[i, 1] = vectors[i, 1] / norm
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _fit(arc, points, at):
+    """Least-squares cubic spline of points(arc): (positions at ``at``, unit tangents there, solvable)."""
     span = arc[-1] - arc[0]
     inner = max(int(span / KNOT_SPACING_PX) - 1, 0)
-    knots = np.concatenate([[arc[0]] * 4, np.linspace(arc[0], arc[-1], inner + 2)[1:-1], [arc[-1]] * 4])
+    candidates = np.linspace(arc[0], arc[-1], inner + 2)[1:-1]
     # Each knot interval needs data (Schoenberg-Whitney); drop interior knots in empty stretches
     # (a knot more than half a spacing from every sample: across a long gap, consecutive empty
     # intervals make the fit ill-conditioned and the curve swings off by thousands of pixels).
     half = 0.5 * KNOT_SPACING_PX
-    inner_knots = knots[4:-4]
-    nearest_after = np.minimum(np.searchsorted(arc, inner_knots - half, side="right"), len(arc) - 1)
-    keep = inner_knots[(arc[nearest_after] > inner_knots - half) & (arc[nearest_after] < inner_knots + half)]
-    knots = np.concatenate([[arc[0]] * 4, keep, [arc[-1]] * 4])
-    coefficients, solvable = least_squares_spline(arc, np.ascontiguousarray(points, np.float64), knots)
+    kept = np.zeros(candidates.shape[0], np.bool_)
+    for j in range(candidates.shape[0]):
+        after = min(np.searchsorted(arc, candidates[j] - half, side="right"), arc.shape[0] - 1)
+        kept[j] = candidates[j] - half < arc[after] < candidates[j] + half
+    inner_knots = candidates[kept]
+    knots = np.empty(inner_knots.shape[0] + 8)
+    knots[:4] = arc[0]
+    knots[4:-4] = inner_knots
+    knots[-4:] = arc[-1]
+    try:
+        coefficients, solvable = least_squares_spline(arc, points, knots)
+    except Exception:  # noqa: BLE001 - a singular normal matrix (numba raises LinAlgError as a plain exception)
+        coefficients, solvable = np.zeros((knots.shape[0] - 4, 2)), False
     if not solvable:
-        raise ValueError("a knot interval without samples (Schoenberg-Whitney)")
-    values, tangent = evaluate(knots, coefficients, np.ascontiguousarray(at, np.float64))
-    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True) + 1e-12
-    return values, tangent
+        return np.zeros((0, 2)), np.zeros((0, 2)), False
+    values, tangent = evaluate(knots, coefficients, at)
+    return values, _unit_rows(tangent), True
 
 
 def densify(nodes: np.ndarray, spacing_px: float = SAMPLE_SPACING_PX) -> tuple[np.ndarray, np.ndarray]:
@@ -194,73 +221,102 @@ def refinement_passes(mask: np.ndarray, nodes: np.ndarray, *, extend_ends: bool 
     Yields None, and stops, where a pass finds too few chords."""
     mask01 = (mask > 0).astype(np.float32)
     points, tangent = densify(nodes)
+    points, tangent = np.ascontiguousarray(points), np.ascontiguousarray(tangent)
     max_half = 0.5 * max(mask.shape)  # first pass: search as far as the largest plausible tube
     while True:
-        normals = np.column_stack([-tangent[:, 1], tangent[:, 0]])
-        mids, half, ok = _chords(mask01, points, normals, max_half, 0.5)
-        if ok.sum() < 6:
+        status, points, tangent, max_half, curve, supported, half = _refine_pass(mask01, points, tangent, max_half,
+                                                                                 extend_ends)
+        if status == _STOP:
             yield None
             return
-        arc = _arc(points)
-        ok &= _full_width(arc, half, ok)
-        if ok.sum() < 6:
-            yield None
-            return
-        max_half = 2.0 * float(np.median(half[ok]))
-        before = points
-        try:
-            points, tangent = _fit(arc[ok], mids[ok], arc)
-        except (ValueError, np.linalg.LinAlgError):  # too few chords for the spline's knots (Schoenberg-Whitney)
-            yield None
-            return
-        if not _follows(points, before, ok, mids, float(np.median(half[ok]))):
-            yield None  # nodes too disordered for a curve through them (a baseline's zig-zag)
-            return
-        # Keep only the stretch between the outermost supported samples; ends are found next.
-        first, last = np.flatnonzero(ok)[[0, -1]]
-        points, tangent, ok, half = (points[first:last + 1], tangent[first:last + 1], ok[first:last + 1],
-                                     half[first:last + 1])
-        yield _finished(mask01, points, tangent, ok, half, extend_ends)
+        yield Centerline2D(curve, supported, half, _arc(curve)) if status == _CURVE else None
 
 
-def _finished(mask01: np.ndarray, points: np.ndarray, tangent: np.ndarray, ok: np.ndarray, half: np.ndarray,
-              extend_ends: bool) -> Centerline2D | None:
-    """The centerline after a pass: support withdrawn beside gaps, the ends extended to the silhouette's."""
-    typical = float(np.median(half[ok]))
+_STOP, _CURVE, _NO_CURVE = 0, 1, 2  # see _refine_pass
+
+
+@numba.njit(cache=True, nogil=True)
+def _refine_pass(mask01, points, tangent, max_half, extend_ends):
+    """One chord-midpoint pass over the sampled curve (points, unit tangents).
+
+    Returns (status, the curve's samples and tangents for the next pass, the next pass's search
+    reach, and this pass's centerline: points, supported, half widths). Status ``_STOP``: too few
+    chords, or the smoothing fit failed or swung off (stop); ``_NO_CURVE``: too little support
+    left beside gaps, but another pass may find more; ``_CURVE``: the centerline."""
+    no_points, no_flags, no_values = np.zeros((0, 2)), np.zeros(0, np.bool_), np.zeros(0)
+    normals = np.empty_like(tangent)
+    normals[:, 0] = -tangent[:, 1]
+    normals[:, 1] = tangent[:, 0]
+    mids, half, ok = _chords(mask01, points, normals, max_half, 0.5)
+    if ok.sum() < 6:
+        return _STOP, points, tangent, max_half, no_points, no_flags, no_values
+    arc = _arc(points)
+    ok &= _full_width(arc, half, ok, 0.08, END_TOLERANCE)
+    if ok.sum() < 6:
+        return _STOP, points, tangent, max_half, no_points, no_flags, no_values
+    typical = np.median(half[ok])
+    fitted, fitted_tangent, solved = _fit(arc[ok], mids[ok], arc)
+    if not solved or not _follows(fitted, points, ok, mids, typical):
+        return _STOP, points, tangent, max_half, no_points, no_flags, no_values
+    # Keep only the stretch between the outermost supported samples; ends are found next.
+    support = np.flatnonzero(ok)
+    first, stop = support[0], support[-1] + 1
+    points, tangent = fitted[first:stop].copy(), fitted_tangent[first:stop].copy()
+    status, curve, supported, curve_half = _finished(mask01, points, tangent, ok[first:stop].copy(),
+                                                     half[first:stop].copy(), extend_ends)
+    return status, points, tangent, 2.0 * typical, curve, supported, curve_half
+
+
+@numba.njit(cache=True, nogil=True)
+def _finished(mask01, points, tangent, ok, half, extend_ends):
+    """The centerline after a pass: support withdrawn beside gaps, the ends extended to the silhouette's.
+    (status, points, supported, half widths (NaN where not supported))."""
+    typical = np.median(half[ok])
     ok = _away_from_gaps(ok, _arc(points), typical)
     if ok.sum() < 6:
-        return None
+        return _NO_CURVE, np.zeros((0, 2)), np.zeros(0, np.bool_), np.zeros(0)
     if extend_ends:
-        head = _extend(mask01, points[0], -tangent[0], 4.0 * typical + 20.0)
+        head = _extend(mask01, points[0], -tangent[0], 4.0 * typical + 20.0)[::-1]
         tail = _extend(mask01, points[-1], tangent[-1], 4.0 * typical + 20.0)
-        points = np.vstack([head[::-1], points, tail])
-        ok = np.concatenate([np.zeros(len(head), bool), ok, np.zeros(len(tail), bool)])
-        half = np.concatenate([np.full(len(head), np.nan), half, np.full(len(tail), np.nan)])
-    return Centerline2D(points, ok, np.where(ok, half, np.nan), _arc(points))
+        m, a, b = points.shape[0], head.shape[0], tail.shape[0]
+        grown = np.empty((a + m + b, 2))
+        grown[:a] = head
+        grown[a:a + m] = points
+        grown[a + m:] = tail
+        grown_ok = np.zeros(a + m + b, np.bool_)
+        grown_ok[a:a + m] = ok
+        grown_half = np.full(a + m + b, np.nan)
+        grown_half[a:a + m] = half
+        points, ok, half = grown, grown_ok, grown_half
+    return _CURVE, points, ok, np.where(ok, half, np.nan)
 
 
-def _follows(fitted: np.ndarray, before: np.ndarray, ok: np.ndarray, mids: np.ndarray, half_width: float) -> bool:
+@numba.njit(cache=True, nogil=True)
+def _follows(fitted, before, ok, mids, half_width):
     """The smoothing fit stays near the curve it refines: finite, within a tube width of the chord
     midpoints it was fitted to, and, across unsupported stretches, within a few widths of the curve
     before the pass (an ill-posed fit through disordered nodes swings off by thousands of pixels)."""
-    inside = slice(*np.flatnonzero(ok)[[0, -1]] + (0, 1))
-    fitted, before = fitted[inside], before[inside]
-    if not np.all(np.isfinite(fitted)):
-        return False
-    near_mids = np.max(np.linalg.norm(fitted[ok[inside]] - mids[inside][ok[inside]], axis=1)) <= 2.0 * half_width
-    return bool(near_mids and np.max(np.linalg.norm(fitted - before, axis=1)) <= 6.0 * half_width)
+    support = np.flatnonzero(ok)
+    for i in range(support[0], support[-1] + 1):
+        if not (np.isfinite(fitted[i, 0]) and np.isfinite(fitted[i, 1])):
+            return False
+    for i in range(support[0], support[-1] + 1):
+        if math.hypot(fitted[i, 0] - before[i, 0], fitted[i, 1] - before[i, 1]) > 6.0 * half_width:
+            return False
+        if ok[i] and math.hypot(fitted[i, 0] - mids[i, 0], fitted[i, 1] - mids[i, 1]) > 2.0 * half_width:
+            return False
+    return True
 
 
-def _full_width(arc: np.ndarray, half: np.ndarray, ok: np.ndarray, tolerance: float = 0.08,
-                end_tolerance: float = END_TOLERANCE) -> np.ndarray:
+@numba.njit(cache=True, nogil=True)
+def _full_width(arc, half, ok, tolerance, end_tolerance):
     """Chords as wide as the tube around them: the rest are cut by a baseplate or lie in the end cap.
 
     The end cap's image is tilted when seen off-axis, so chords inside it are off-centre;
     they are also narrower than the body, which is what singles them out. Width is compared
     with a running median over about two tube widths, since depth changes it along the arm.
     """
-    idx = np.flatnonzero(ok)
-    typical = float(np.median(half[idx]))
+    typical = np.median(half[ok])
     coarse = (half > 0.5 * typical) & (half < 1.6 * typical) & ok
     idx = np.flatnonzero(coarse)
     if len(idx) < 3:
@@ -274,7 +330,7 @@ def _full_width(arc: np.ndarray, half: np.ndarray, ok: np.ndarray, tolerance: fl
     near_end = (arc - arc[idx[0]] < 2.0 * typical) | (arc[idx[-1]] - arc < 2.0 * typical)
     # A ragged silhouette (a blurred step's halo half passes the colour gate) spreads every chord's
     # width: the tolerance grows with that spread, measured along the whole arm.
-    spread = RAGGED_SPREADS * 1.4826 * float(np.median(np.abs(half[idx] / local[idx] - 1.0)))
+    spread = RAGGED_SPREADS * 1.4826 * np.median(np.abs(half[idx] / local[idx] - 1.0))
     allowed = np.maximum(np.where(near_end, end_tolerance, tolerance), spread) * local
     return coarse & (np.abs(half - local) <= allowed)
 
@@ -288,7 +344,8 @@ def window_medians(values, lo, hi, fallback):
     return out
 
 
-def _away_from_gaps(ok: np.ndarray, arc: np.ndarray, half_width: float) -> np.ndarray:
+@numba.njit(cache=True, nogil=True)
+def _away_from_gaps(ok, arc, half_width):
     """Withdraw support within half a width of an unsupported stretch inside the curve.
 
     A chord beside a baseplate is partly cut by it, so its midpoint is biased sideways even
@@ -296,20 +353,28 @@ def _away_from_gaps(ok: np.ndarray, arc: np.ndarray, half_width: float) -> np.nd
     symmetric about the axis, so their midpoints are unbiased, only shorter.
     """
     unsupported = arc[~ok]
-    reach = 0.5 * half_width
-    near = np.zeros_like(ok)
-    if len(unsupported):
-        idx = np.searchsorted(unsupported, arc)
-        lo = np.abs(arc - unsupported[np.clip(idx - 1, 0, len(unsupported) - 1)])
-        hi = np.abs(arc - unsupported[np.clip(idx, 0, len(unsupported) - 1)])
-        near = np.minimum(lo, hi) <= reach
-    return ok & ~near
+    if len(unsupported) == 0:
+        return ok
+    last = len(unsupported) - 1
+    out = ok.copy()
+    for i in range(arc.shape[0]):
+        j = np.searchsorted(unsupported, arc[i])
+        nearest = min(abs(arc[i] - unsupported[min(max(j - 1, 0), last)]), abs(arc[i] - unsupported[min(j, last)]))
+        if nearest <= 0.5 * half_width:
+            out[i] = False
+    return out
 
 
-def _extend(mask01: np.ndarray, start: np.ndarray, direction: np.ndarray, max_px: float) -> np.ndarray:
+@numba.njit(cache=True, nogil=True)
+def _extend(mask01, start, direction, max_px):
     """Points from ``start`` (exclusive) along ``direction`` up to the silhouette edge (inclusive)."""
-    distance = edge_distance(mask01, start, direction, max_px)
+    norm = math.hypot(direction[0], direction[1])
+    dx, dy = direction[0] / norm, direction[1] / norm
+    distance = _edge_distance(mask01, start[0], start[1], dx, dy, max_px, 0.5)
     if distance <= 0:
         return np.zeros((0, 2))
     steps = np.append(np.arange(SAMPLE_SPACING_PX, distance, SAMPLE_SPACING_PX), distance)
-    return start + steps[:, None] * (direction / np.linalg.norm(direction))
+    out = np.empty((steps.shape[0], 2))
+    out[:, 0] = start[0] + steps * dx
+    out[:, 1] = start[1] + steps * dy
+    return out
