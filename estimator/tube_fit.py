@@ -493,6 +493,22 @@ def _normal_equations(bases, control, radii, bins, baseline, focal, kinds, sides
         jac[n] = gr
         n += 1
         ws = w / (sigmas[i] * sigmas[i])
+        finite = True
+        for p in range(n):
+            finite = finite and jac[p] == jac[p]
+        if finite:  # nearly always: the same sums as below, on the contiguous block of four control points
+            b = 3 * first
+            rr = idx[n - 1]
+            for p in range(n - 1):
+                wp = ws * jac[p]
+                g[b + p] += wp * res_px
+                for q in range(p, n - 1):
+                    A[b + p, b + q] += wp * jac[q]
+                A[b + p, rr] += wp * jac[n - 1]
+            wp = ws * jac[n - 1]
+            g[rr] += wp * res_px
+            A[rr, rr] += wp * jac[n - 1]
+            continue
         for p in range(n):
             if jac[p] != jac[p]:
                 continue
@@ -513,19 +529,27 @@ def _attach(knots, control, baseline, sides, centres, samples):
     """u of the axis point whose projection is nearest each chord centre, in its own image."""
     us = np.linspace(0.0, 1.0, samples)
     points, _ = evaluate_many(knots, control, us)
+    # each sample's image in both cameras, once (NaN behind the camera)
+    image_x = np.full((2, samples), np.nan)
+    image_y = np.full((2, samples), np.nan)
+    for k in range(samples):
+        Z = points[k, 2]
+        if Z > 1e-6:
+            for side in range(2):
+                image_x[side, k] = (points[k, 0] - (baseline if side == 1 else 0.0)) / Z
+                image_y[side, k] = points[k, 1] / Z
     out = np.empty(sides.shape[0])
     dist = np.empty(samples)
     for i in range(sides.shape[0]):
         best = 1e18
         best_k = 0
+        side = 1 if sides[i] == 1 else 0
         for k in range(samples):
-            X = points[k, 0] - (baseline if sides[i] == 1 else 0.0)
-            Z = points[k, 2]
-            if Z <= 1e-6:
+            if image_x[side, k] != image_x[side, k]:
                 dist[k] = 1e18
                 continue
-            dx = X / Z - centres[i, 0]
-            dy = points[k, 1] / Z - centres[i, 1]
+            dx = image_x[side, k] - centres[i, 0]
+            dy = image_y[side, k] - centres[i, 1]
             dist[k] = dx * dx + dy * dy
             if dist[k] < best:
                 best = dist[k]
