@@ -24,6 +24,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from estimator.segmentation import region_areas
+
 MIN_ASPECT = 2.5  # a tube is at least this many widths long (a folded arm still is)
 MIN_CONSISTENCY = 0.55  # share of the medial axis whose half width is near the typical one
 WIDTH_AT_DEPTH = (0.6, 1.7)  # measured width / the configured tube's width at the measured depth
@@ -47,25 +49,27 @@ def corridor(shape: tuple[int, int], curve_px: np.ndarray, half_width_px: float)
 
 
 def keep_in_corridor(mask: np.ndarray, curve_px: np.ndarray, reach_px: float, clip_px: float,
-                     with_cut: bool = False):
+                     with_cut: bool = False, min_area_px: int = 0):
     """The components of ``mask`` that come within ``reach_px`` of the previous centerline,
     cut to within ``clip_px`` of it (a distractor the arm touches is cut off at the corridor).
 
     With ``with_cut``, also returns what the cut removed (uint8 mask): much of it, or any of it
     next to the curve's ends, means a distractor touches the arm or the arm itself left the
     corridor (a fast swing of the tip), and the caller should look for the arm afresh.
+    Components smaller than ``min_area_px`` are left out as ``remove_small_regions`` would have.
     """
     labels_count, labels = cv2.connectedComponents(mask, connectivity=8)
-    near = corridor(mask.shape, curve_px, reach_px) > 0
-    touching = np.unique(labels[near & (mask > 0)])
-    touching = touching[touching > 0]
+    large = region_areas(mask, labels, labels_count) >= min_area_px
+    near = corridor(mask.shape, curve_px, reach_px)
+    touching = np.unique(labels[(near > 0) & (mask > 0)])
+    touching = touching[(touching > 0) & large[touching]]
     if len(touching) == 0:
         empty = np.zeros_like(mask)
         return (empty, empty) if with_cut else empty
-    keep = np.zeros(labels_count, bool)
-    keep[touching] = True
-    kept = np.where(keep[labels], 255, 0).astype(np.uint8)
-    clipped = cv2.bitwise_and(kept, corridor(mask.shape, curve_px, clip_px))
+    keep = np.zeros(labels_count, np.uint8)
+    keep[touching] = 255
+    kept = keep[labels]
+    clipped = cv2.bitwise_and(kept, near if clip_px == reach_px else corridor(mask.shape, curve_px, clip_px))
     if not with_cut:
         return clipped
     return clipped, cv2.subtract(kept, clipped)

@@ -431,15 +431,17 @@ class CenterlineEstimator:
         cfg = self.config
         min_area = max(cfg.min_area_px // self._scale**2, 2)
 
-        def gated(hsv_, low):
-            return remove_small_regions(_open(self._colour.apply(hsv_, hsv_in_range(hsv_, low, cfg.hsv_high))),
-                                        min_area)
+        def with_specks(hsv_, low):  # the colour gate, opened; its small regions still in
+            return _open(self._colour.apply(hsv_, hsv_in_range(hsv_, low, cfg.hsv_high)))
 
-        def one_side(side):  # the coarse image, its colour gate and the tracked arm's part of it
+        def gated(hsv_, low):
+            return remove_small_regions(with_specks(hsv_, low), min_area)
+
+        def one_side(side):  # the coarse image, its gate with specks, and the tracked arm's part of it
             hsv_ = cv2.cvtColor(cv2.remap(images[side], *self._coarse_maps[side], cv2.INTER_NEAREST),
                                 cv2.COLOR_BGR2HSV)
-            gate_ = gated(hsv_, self._gate_low)
-            return hsv_, gate_, self._keep_tracked_side(side, gate_)
+            gate_ = with_specks(hsv_, self._gate_low)
+            return hsv_, gate_, self._keep_tracked_side(side, gate_, min_area)
 
         future = _beside(one_side, "right")
         try:
@@ -449,7 +451,6 @@ class CenterlineEstimator:
                 wait([future])  # always, even when the left one failed: the worker reads shared state
         per_side = {"left": left, "right": future.result() if future is not None else one_side("right")}
         hsv = {side: per_side[side][0] for side in SIDES}
-        gate = {side: per_side[side][1] for side in SIDES}
         tracked = [per_side[side][2] for side in SIDES]
         keep = None if any(k is None for k in tracked) else dict(zip(SIDES, tracked, strict=True))
 
@@ -457,6 +458,7 @@ class CenterlineEstimator:
             return {side: gated(hsv[side], low) for side in SIDES}
 
         if keep is None:
+            gate = {side: remove_small_regions(per_side[side][1], min_area) for side in SIDES}
             geometry = TubeGeometry(self._rect.focal_px / self._scale, self._rect.baseline_m, cfg.arm_radius_m,
                                     cfg.arm_length_m,
                                     None if self._base_hint is None else tuple(self._base_hint / self._scale))
@@ -534,9 +536,10 @@ class CenterlineEstimator:
             near = _corridor_mask(mask.shape, curve, 2.0 * s.width_px)
             self._colour.update(hsv, gate, interior, cv2.bitwise_not(near))
 
-    def _keep_tracked_side(self, side: str, gate: np.ndarray) -> np.ndarray | None:
-        """The arm's coarse pixels near the previous frame's centerline in one image, or None when
-        that does not hold the whole arm (it moved too far, or there is no previous frame)."""
+    def _keep_tracked_side(self, side: str, gate: np.ndarray, min_area: int) -> np.ndarray | None:
+        """The arm's coarse pixels near the previous frame's centerline in one image (regions of the
+        gate smaller than ``min_area`` left out), or None when that does not hold the whole arm (it
+        moved too far, or there is no previous frame)."""
         if any(self._warm[s] is None for s in SIDES) or len(self._track) < 2:
             return None
         width, area = self._track[side]
@@ -544,7 +547,7 @@ class CenterlineEstimator:
         # Half the tube's width plus how far it may move in a frame: a distractor the arm touches
         # is cut off at the corridor's edge.
         reach = 0.5 * width + max(0.5 * width, 3.0)
-        kept, cut = keep_in_corridor(gate, _extended(curve, width), reach, reach, with_cut=True)
+        kept, cut = keep_in_corridor(gate, _extended(curve, width), reach, reach, with_cut=True, min_area_px=min_area)
         if np.count_nonzero(kept) < 0.8 * area:
             return None
         cut_px = np.count_nonzero(cut)

@@ -71,14 +71,21 @@ def remove_small_regions(mask: np.ndarray, min_area_px: int) -> np.ndarray:
     """Drop 8-connected regions smaller than ``min_area_px`` (isolated noise, reflections)."""
     if min_area_px <= 1:
         return mask
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    small = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] < min_area_px) + 1
-    if len(small) == 0:
-        return mask
-    keep = np.ones(count, dtype=bool)
-    keep[small] = False
+    count, labels = cv2.connectedComponents(mask, connectivity=8)
+    keep = region_areas(mask, labels, count) >= min_area_px
     keep[0] = False
-    return np.where(keep[labels], 255, 0).astype(np.uint8)
+    if keep[1:].all():
+        return mask
+    return np.where(keep, 255, 0).astype(np.uint8)[labels]
+
+
+def region_areas(mask: np.ndarray, labels: np.ndarray, count: int) -> np.ndarray:
+    """(count,) pixels of each labelled region of a mask (the background's, label 0, is not counted).
+
+    Counted from the mask's pixels alone: ``cv2.connectedComponentsWithStats`` computes every
+    region's box and centroid over the whole image too, 0.25 ms more per coarse image.
+    """
+    return np.bincount(labels[mask > 0], minlength=count)
 
 
 def contour_points(mask: np.ndarray, canny_low: int, canny_high: int, step: int) -> np.ndarray:

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from estimator.arm_region import TubeGeometry, corridor, find_tube, keep_in_corridor, saturation_split
+from estimator.segmentation import remove_small_regions
 
 SHAPE = (180, 320)
 GEOMETRY = TubeGeometry(focal_px=175.0, baseline_m=0.12, radius_m=0.025, length_m=0.685)
@@ -178,6 +179,22 @@ def test_keep_in_corridor_keeps_what_touches_the_previous_curve_and_clips_the_re
     # nothing near the curve: nothing kept
     far = np.array([[20.0, 20.0], [40.0, 20.0]])
     assert not keep_in_corridor(mask, far, 3.0, 3.0).any()
+
+
+def test_keep_in_corridor_leaves_out_specks_as_removing_small_regions_first_would():
+    arm = draw("arm", 0)
+    speck = np.zeros_like(arm)
+    x, y = (int(v) for v in ARM_PATH[len(ARM_PATH) // 2] + [12.0, 0.0])  # inside the corridor, apart from the arm
+    speck[y:y + 2, x:x + 2] = 255
+    assert not np.any(speck & arm)
+    mask = arm | speck
+    curve = ARM_PATH + [1.5, 0.0]
+    kept, cut = keep_in_corridor(mask, curve, 16.0, 16.0, with_cut=True, min_area_px=5)
+    first, first_cut = keep_in_corridor(remove_small_regions(mask, 5), curve, 16.0, 16.0, with_cut=True)
+    assert not np.any(kept & speck)
+    np.testing.assert_array_equal(kept, first)
+    np.testing.assert_array_equal(cut, first_cut)
+    assert np.any(keep_in_corridor(mask, curve, 16.0, 16.0) & speck)  # without the floor, the speck stays
 
 
 def test_corridor_is_a_band_around_the_polyline():
