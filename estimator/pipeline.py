@@ -1145,9 +1145,18 @@ def _upsampled(coarse_keep: np.ndarray, roi: tuple[int, int, int, int], shape: t
     grown = cv2.dilate(coarse_keep, np.ones((3, 3), np.uint8))
     x0, y0 = roi[0], roi[1]
     h, w = shape
-    rows = np.minimum((np.arange(y0, y0 + h) + scale // 2) // scale, grown.shape[0] - 1)
-    cols = np.minimum((np.arange(x0, x0 + w) + scale // 2) // scale, grown.shape[1] - 1)
-    return grown[np.ix_(rows, cols)]
+    # Full-resolution pixel (x, y) takes coarse pixel ((x + s/2) // s, (y + s/2) // s), the last row or
+    # column beyond the coarse image: the block of coarse pixels the region needs, edges repeated,
+    # blown up s times (nearest neighbour) and cut at the offset.
+    half = scale // 2
+    r0, c0 = (y0 + half) // scale, (x0 + half) // scale
+    r1, c1 = (y0 + h - 1 + half) // scale + 1, (x0 + w - 1 + half) // scale + 1
+    padded = cv2.copyMakeBorder(grown, 0, max(r1 - grown.shape[0], 0), 0, max(c1 - grown.shape[1], 0),
+                                cv2.BORDER_REPLICATE)
+    block = padded[r0:r1, c0:c1]
+    blown = cv2.resize(block, (block.shape[1] * scale, block.shape[0] * scale), interpolation=cv2.INTER_NEAREST)
+    dy, dx = y0 + half - r0 * scale, x0 + half - c0 * scale
+    return blown[dy:dy + h, dx:dx + w]
 
 
 def _polyline_length(points: np.ndarray) -> float:
