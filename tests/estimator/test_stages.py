@@ -332,3 +332,20 @@ def test_compensation_of_an_arm_along_one_row_keeps_the_places_along_it():
     out = compensate_nodes(left, right, window=1 / 19, min_sine=0.25)
     np.testing.assert_allclose(out[:, 0], left[:, 0] - 70.0, atol=1e-6)
     np.testing.assert_allclose(out[:, 1], left[:, 1])
+
+
+@pytest.mark.parametrize("scale", [1, 2, 3, 4])
+def test_the_coarse_keep_mask_covers_each_full_resolution_pixel_from_its_nearest_coarse_pixel(scale):
+    from estimator.pipeline import _upsampled
+
+    rng = np.random.default_rng(scale)
+    for _ in range(200):
+        hc, wc = rng.integers(5, 40, 2)
+        coarse = (rng.random((hc, wc)) < 0.1).astype(np.uint8) * 255
+        grown = cv2.dilate(coarse, np.ones((3, 3), np.uint8))
+        x0, y0 = rng.integers(0, wc * scale), rng.integers(0, hc * scale)
+        x1, y1 = rng.integers(x0 + 1, wc * scale + 1), rng.integers(y0 + 1, hc * scale + 1)
+        out = _upsampled(coarse, (x0, y0, x1, y1), (y1 - y0, x1 - x0), scale)
+        rows = np.minimum((np.arange(y0, y1) + scale // 2) // scale, hc - 1)  # the last coarse row beyond
+        cols = np.minimum((np.arange(x0, x1) + scale // 2) // scale, wc - 1)
+        np.testing.assert_array_equal(out, grown[np.ix_(rows, cols)])
