@@ -31,14 +31,30 @@ def basis(knots, count, u):
 def basis_at(knots, count, u):
     """``basis`` on any knot vector (``count`` + 4 knots, the first and last four repeated) at any u:
     beyond the end knots, the end pieces' polynomials (extrapolation)."""
+    work, values, deriv = basis_workspace()
+    first = basis_into(knots, count, u, work, values, deriv)
+    return first, values, deriv
+
+
+@numba.njit(cache=True, nogil=True)
+def basis_workspace():
+    """Scratch for ``basis_into``: (work (6, 4), values (4,), derivatives (4,))."""
+    return np.zeros((DEGREE + 3, DEGREE + 1)), np.empty(DEGREE + 1), np.empty(DEGREE + 1)
+
+
+@numba.njit(cache=True, nogil=True)
+def basis_into(knots, count, u, work, values, deriv):
+    """``basis_at`` into caller-provided arrays (``basis_workspace``); returns the first index. Loops
+    over thousands of observations call it: allocating the small tables per call cost more than
+    the arithmetic."""
     k = DEGREE
     span = k
     while span < count - 1 and knots[span + 1] <= u:
         span += 1
     # Cox-de Boor, triangular table (The NURBS Book, algorithm A2.2 and A2.3 for one derivative).
-    left = np.zeros(k + 1)
-    right = np.zeros(k + 1)
-    ndu = np.zeros((k + 1, k + 1))
+    ndu = work[:k + 1]
+    left = work[k + 1]
+    right = work[k + 2]
     ndu[0, 0] = 1.0
     for j in range(1, k + 1):
         left[j] = u - knots[span + 1 - j]
@@ -50,10 +66,8 @@ def basis_at(knots, count, u):
             ndu[r, j] = saved + right[r + 1] * temp
             saved = left[j - r] * temp
         ndu[j, j] = saved
-    values = np.empty(k + 1)
     for j in range(k + 1):
         values[j] = ndu[j, k]
-    deriv = np.zeros(k + 1)
     for r in range(k + 1):
         # first derivative: k * (N_{r-1,k-1} / (u_{i+k} - u_i) - N_{r,k-1} / (u_{i+k+1} - u_{i+1}))
         d = 0.0
@@ -66,7 +80,7 @@ def basis_at(knots, count, u):
             if denom != 0.0:
                 d -= ndu[r, k - 1] / denom
         deriv[r] = k * d
-    return span - k, values, deriv
+    return span - k
 
 
 @numba.njit(cache=True, nogil=True)
@@ -86,12 +100,15 @@ def evaluate(knots, control, u):
 def evaluate_many(knots, control, us):
     """(points (M, 3), derivatives (M, 3)) at every u."""
     m = us.shape[0]
-    points = np.empty((m, 3))
-    tangents = np.empty((m, 3))
+    points = np.zeros((m, 3))
+    tangents = np.zeros((m, 3))
+    work, values, deriv = basis_workspace()
     for i in range(m):
-        p, t = evaluate(knots, control, us[i])
-        points[i] = p
-        tangents[i] = t
+        first = basis_into(knots, control.shape[0], min(max(us[i], 0.0), 1.0), work, values, deriv)
+        for j in range(DEGREE + 1):
+            for c in range(3):
+                points[i, c] += values[j] * control[first + j, c]
+                tangents[i, c] += deriv[j] * control[first + j, c]
     return points, tangents
 
 
@@ -114,8 +131,9 @@ def fit_control_points(points: np.ndarray, count: int) -> tuple[np.ndarray, np.n
 def _design(knots, count, us):
     """(M, count) the basis functions' values at every u: a least-squares fit's design matrix."""
     A = np.zeros((us.shape[0], count))
+    work, values, deriv = basis_workspace()
     for i in range(us.shape[0]):
-        first, values, _ = basis(knots, count, us[i])
+        first = basis_into(knots, count, min(max(us[i], 0.0), 1.0), work, values, deriv)
         for j in range(DEGREE + 1):
             A[i, first + j] = values[j]
     return A

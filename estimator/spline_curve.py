@@ -13,7 +13,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from estimator.bspline import DEGREE, basis_at
+from estimator.bspline import DEGREE, basis_into, basis_workspace
 
 
 @numba.njit(cache=True, nogil=True)
@@ -28,8 +28,9 @@ def interpolating_spline(x, y):
     for j in range(2, n - 2):
         knots[j + 2] = x[j]
     A = np.zeros((n, n))
+    work, values, deriv = basis_workspace()
     for i in range(n):
-        first, values, _ = basis_at(knots, n, x[i])
+        first = basis_into(knots, n, x[i], work, values, deriv)
         for j in range(DEGREE + 1):
             A[i, first + j] = values[j]
     return knots, np.linalg.solve(A, np.ascontiguousarray(y))
@@ -44,8 +45,9 @@ def least_squares_spline(x, y, knots):
     d = y.shape[1]
     N = np.zeros((count, count))
     b = np.zeros((count, d))
+    work, values, deriv = basis_workspace()
     for i in range(x.shape[0]):
-        first, values, _ = basis_at(knots, count, x[i])
+        first = basis_into(knots, count, x[i], work, values, deriv)
         for p in range(DEGREE + 1):
             for c in range(d):
                 b[first + p, c] += values[p] * y[i, c]
@@ -66,8 +68,9 @@ def evaluate(knots, coefficients, at):
     m = at.shape[0]
     values = np.zeros((m, d))
     derivatives = np.zeros((m, d))
+    work, v, dv = basis_workspace()
     for i in range(m):
-        first, v, dv = basis_at(knots, count, at[i])
+        first = basis_into(knots, count, at[i], work, v, dv)
         for j in range(DEGREE + 1):
             for c in range(d):
                 values[i, c] += v[j] * coefficients[first + j, c]

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
-from estimator.bspline import DEGREE, basis, clamped_knots, evaluate_many, fit_control_points
+from estimator.bspline import DEGREE, basis_into, basis_workspace, clamped_knots, evaluate_many, fit_control_points
 
 CONTROL_POINTS = 16
 RADIUS_BINS = 24
@@ -138,8 +138,9 @@ def _point_covariances(knots, control, covariance, us):
     m = us.shape[0]
     S = np.zeros((m, 3, 3))
     tangents = np.zeros((m, 3))
+    work, values, deriv = basis_workspace()
     for i in range(m):
-        first, values, deriv = basis(knots, count, us[i])
+        first = basis_into(knots, count, min(max(us[i], 0.0), 1.0), work, values, deriv)
         for a in range(DEGREE + 1):
             for c in range(3):
                 tangents[i, c] += deriv[a] * control[first + a, c]
@@ -316,9 +317,7 @@ def _cap_piece(C, D, r, x, y, piece):
     tn = math.sqrt(D[0] * D[0] + D[1] * D[1] + D[2] * D[2])
     if tn < 1e-12:
         return np.nan
-    T = np.empty(3)
-    for c in range(3):
-        T[c] = D[c] / tn
+    T = (D[0] / tn, D[1] / tn, D[2] / tn)  # a tuple: no allocation in the fit's inner loop
     px, py = _rim_point(C, T, r, piece)
     qx, qy = _rim_point(C, T, r, piece + 1)
     ex, ey = qx - px, qy - py
@@ -344,9 +343,7 @@ def _cap_residual_piece(C, D, r, x, y):
     tn = math.sqrt(D[0] * D[0] + D[1] * D[1] + D[2] * D[2])
     if tn < 1e-12:
         return np.nan, piece
-    T = np.empty(3)
-    for c in range(3):
-        T[c] = D[c] / tn
+    T = (D[0] / tn, D[1] / tn, D[2] / tn)  # a tuple: no allocation in the fit's inner loop
     px, py = _rim_point(C, T, r, 0)
     if px != px:
         return np.nan, piece
@@ -399,8 +396,9 @@ def _bases(knots, count, us):
     firsts = np.empty(n, np.int64)
     values = np.empty((n, DEGREE + 1))
     derivs = np.empty((n, DEGREE + 1))
+    work, v, d = basis_workspace()
     for i in range(n):
-        first, v, d = basis(knots, count, us[i])
+        first = basis_into(knots, count, min(max(us[i], 0.0), 1.0), work, v, d)
         firsts[i] = first
         values[i] = v
         derivs[i] = d
@@ -939,8 +937,9 @@ def _edge_sides(knots, control, baseline, sides, us, xy, centres):
     count = control.shape[0]
     C = np.empty(3)
     D = np.empty(3)
+    work, values, deriv = basis_workspace()
     for i in range(sides.shape[0]):
-        first, values, deriv = basis(knots, count, us[i])
+        first = basis_into(knots, count, min(max(us[i], 0.0), 1.0), work, values, deriv)
         _axis_at(control, first, values, deriv, baseline if sides[i] == 1 else 0.0, C, D)
         out[i] = _side_of(C, D, xy[i, 0] - centres[i, 0], xy[i, 1] - centres[i, 1])
     return out
