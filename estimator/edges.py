@@ -70,22 +70,26 @@ def _span(ts, total, lo, hi):
 def _levels(ts, prof, total, centre, sign, gap):
     """Mean colours just inside and just outside an edge near ``centre``, read from ``gap`` to
     ``gap + LEVEL_PX`` on each side; returns (inside, outside, counts ok)."""
-    inside = np.zeros(3)
-    outside = np.zeros(3)
+    # (scalars and tuples, not arrays: this runs several times for each of thousands of edges a frame)
+    i0 = i1 = i2 = o0 = o1 = o2 = 0.0
     ni = 0
     no = 0
     first, last = _span(ts, total, centre - gap - LEVEL_PX, centre + gap + LEVEL_PX)
     for k in range(first, last + 1):
         d = (ts[k] - centre) * sign  # > 0 outside
         if -gap - LEVEL_PX <= d <= -gap:
-            inside += prof[k]
+            i0 += prof[k, 0]
+            i1 += prof[k, 1]
+            i2 += prof[k, 2]
             ni += 1
         elif gap <= d <= gap + LEVEL_PX:
-            outside += prof[k]
+            o0 += prof[k, 0]
+            o1 += prof[k, 1]
+            o2 += prof[k, 2]
             no += 1
     if ni == 0 or no == 0:
-        return inside, outside, False
-    return inside / ni, outside / no, True
+        return (i0, i1, i2), (o0, o1, o2), False
+    return (i0 / ni, i1 / ni, i2 / ni), (o0 / no, o1 / no, o2 / no), True
 
 
 @numba.njit(cache=True, nogil=True)
@@ -93,7 +97,7 @@ def _contrasting_levels(ts, prof, total, centre, sign, gap):
     """``_levels``, and the squared contrast between them; (inside, outside, contrast squared, ok),
     not ok where a side has no samples or the contrast is below ``MIN_CONTRAST`` (no edge)."""
     inside, outside, ok = _levels(ts, prof, total, centre, sign, gap)
-    diff = inside - outside
+    diff = (inside[0] - outside[0], inside[1] - outside[1], inside[2] - outside[2])
     norm2 = diff[0] * diff[0] + diff[1] * diff[1] + diff[2] * diff[2]
     return inside, outside, norm2, ok and norm2 >= MIN_CONTRAST * MIN_CONTRAST
 
@@ -102,7 +106,7 @@ def _contrasting_levels(ts, prof, total, centre, sign, gap):
 def _crossing(ts, prof, total, inside, outside, level, centre, reach):
     """Where the profile, normalised to 1 inside and 0 outside, crosses ``level`` nearest ``centre``
     (within ``reach``); NaN if it does not."""
-    diff = inside - outside
+    diff = (inside[0] - outside[0], inside[1] - outside[1], inside[2] - outside[2])
     norm2 = diff[0] * diff[0] + diff[1] * diff[1] + diff[2] * diff[2]
     best = 1e9
     found = np.nan
@@ -130,7 +134,7 @@ def _area_edge(ts, prof, total, inside, outside, edge, sign, half_window):
     end to the edge whatever the sampling phase (the interpolated halfway crossing of a crisp
     anti-aliased step is off by up to 0.08 px at quarter-pixel phases). The window is kept short:
     over a longer one the tube's shading towards its rim biases the area."""
-    diff = inside - outside
+    diff = (inside[0] - outside[0], inside[1] - outside[1], inside[2] - outside[2])
     norm2 = diff[0] * diff[0] + diff[1] * diff[1] + diff[2] * diff[2]
     lo = edge - half_window
     hi = edge + half_window
