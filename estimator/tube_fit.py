@@ -434,8 +434,11 @@ def _normal_equations(bases, control, radii, bins, baseline, focal, kinds, sides
         rj = bins[i]
         r = radii[rj]
         piece = 0
+        gr = 0.0
         if kinds[i] == 2:
             res, piece = _cap_residual_piece(C, D, r, xs[i], ys[i])
+        elif kinds[i] == 0 and want_system:  # an edge's residual comes with its partials
+            res, gr = _edge_residual_gradient(C, D, r, xs[i], ys[i], extras[i], gC, gD)
         else:
             res = _residual_of(kinds[i], C, D, r, xs[i], ys[i], extras[i])
         if res != res:
@@ -453,7 +456,7 @@ def _normal_equations(bases, control, radii, bins, baseline, focal, kinds, sides
         if not want_system:
             continue
         if kinds[i] == 0:  # an edge (nearly every observation): exact partials
-            gr = _edge_residual_gradient(C, D, r, xs[i], ys[i], extras[i], gC, gD)[1] * focal
+            gr *= focal
             for c in range(3):
                 gC[c] *= focal
                 gD[c] *= focal
