@@ -669,12 +669,20 @@ def _damped_step(A, g, cost, damping, bases, control, radii, bins, baseline, foc
             return 0, control, radii, cost, damping
 
 
-def arc_fraction(knots: np.ndarray, control: np.ndarray, us: np.ndarray) -> np.ndarray:
+_ARC_GRID = np.linspace(0.0, 1.0, CURVE_SAMPLES)
+
+
+@numba.njit(cache=True, nogil=True)
+def arc_fraction(knots, control, us):
     """Arc length from the base as a fraction of the whole axis, at each u."""
-    grid = np.linspace(0.0, 1.0, CURVE_SAMPLES)
-    points = evaluate_many(knots, control, grid)[0]
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
-    return np.interp(us, grid, arc / max(arc[-1], 1e-12))
+    points = evaluate_many(knots, control, _ARC_GRID)[0]
+    arc = np.zeros(CURVE_SAMPLES)
+    for k in range(1, CURVE_SAMPLES):
+        dx = points[k, 0] - points[k - 1, 0]
+        dy = points[k, 1] - points[k - 1, 1]
+        dz = points[k, 2] - points[k - 1, 2]
+        arc[k] = arc[k - 1] + math.sqrt(dx * dx + dy * dy + dz * dz)
+    return np.interp(us, _ARC_GRID, arc / max(arc[-1], 1e-12))
 
 
 def radius_bins(knots: np.ndarray, control: np.ndarray, us: np.ndarray, count: int) -> np.ndarray:
