@@ -168,10 +168,7 @@ def _fit(arc, points, at):
     knots[:4] = arc[0]
     knots[4:-4] = inner_knots
     knots[-4:] = arc[-1]
-    try:
-        coefficients, solvable = least_squares_spline(arc, points, knots)
-    except Exception:  # noqa: BLE001 - a singular normal matrix (numba raises LinAlgError as a plain exception)
-        coefficients, solvable = np.zeros((knots.shape[0] - 4, 2)), False
+    coefficients, solvable = least_squares_spline(arc, points, knots)
     if not solvable:
         return np.zeros((0, 2)), np.zeros((0, 2)), False
     values, tangent = evaluate(knots, coefficients, at)
