@@ -655,7 +655,10 @@ class CenterlineEstimator:
             knots = int(np.clip(left.arc_px[-1] / 30.0, 3, 30))
             # The arm leaves its fixed mount along the mount's axis, across the line of sight:
             # depth changes only quadratically there, so the profile continues flat to the base.
-            profile = robust_spline_profile(x, y, w, tau, knots=knots, flat_start=True)
+            try:
+                profile = robust_spline_profile(x, y, w, tau, knots=knots, flat_start=True)
+            except ValueError as e:  # too few distinct places along the arm for the spline's knots
+                raise _NoArmError(f"no disparity profile along the arm: {e}") from e
             if np.any(profile <= 0):
                 raise _NoArmError("non-positive disparity: left and right centerlines disagree")
         with _timed(timings, "triangulate"):

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.interpolate import make_lsq_spline
+
+from estimator.spline_curve import evaluate, least_squares_spline
 
 
 def chord_parameter(points: np.ndarray) -> np.ndarray:
@@ -56,19 +57,26 @@ def robust_spline_profile(x: np.ndarray, y: np.ndarray, weights: np.ndarray, at:
     inner = np.unique(inner[(inner > lo + 1e-9) & (inner < hi - 1e-9)])
     t = np.concatenate([[lo] * 4, inner, [hi] * 4])
     robust = np.ones_like(w)
-    spline = None
+    values = np.ascontiguousarray(y, np.float64)[:, None]
+    coefficients = None
     for _ in range(iterations):
-        spline = make_lsq_spline(x, y, t, k=3, w=np.sqrt(w * robust))
-        r = y - spline(x)
+        coefficients, solved = least_squares_spline(x, values, t, w * robust)
+        if not solved:
+            raise ValueError("the spline profile's normal equations are singular")
+        r = y - evaluate(t, coefficients, x)[0][:, 0]
         scale = 1.4826 * np.median(np.abs(r)) + 1e-9
         z = np.abs(r) / (huber * scale)
         robust = np.where(z <= 1, 1.0, 1.0 / np.maximum(z, 1e-12))
+
+    def spline(u):
+        return evaluate(t, coefficients, np.atleast_1d(np.asarray(u, np.float64)))[0][:, 0]
+
     # Beyond the data, continue straight with the mean slope of the last tenth of the data:
     # cubic extrapolation runs away, and the end derivative alone is the noisiest part of a fit.
     at = np.asarray(at, dtype=np.float64)
     inside = np.clip(at, lo, hi)
     reach = 0.1 * (hi - lo)
-    slope_lo = (spline(lo + reach) - spline(lo)) / reach
-    slope_hi = (spline(hi) - spline(hi - reach)) / reach
+    slope_lo = (spline(lo + reach) - spline(lo))[0] / reach
+    slope_hi = (spline(hi) - spline(hi - reach))[0] / reach
     slope = np.where(at < lo, 0.0 if flat_start else slope_lo, slope_hi)
     return spline(inside) + slope * (at - inside)

@@ -37,10 +37,11 @@ def interpolating_spline(x, y):
 
 
 @numba.njit(cache=True, nogil=True)
-def least_squares_spline(x, y, knots):
+def least_squares_spline(x, y, knots, weights=None):
     """Coefficients (count, d) of the cubic on ``knots`` (``count`` + 4, end knots repeated four times)
-    nearest ``y`` (m, d) at ``x`` in the least-squares sense; ``ok`` False where the normal matrix is
-    singular (a coefficient without samples, or an interval of knots without them)."""
+    nearest ``y`` (m, d) at ``x`` in the least-squares sense, each squared residual weighted by
+    ``weights`` (m,) if given; ``ok`` False where the normal matrix is singular (a coefficient
+    without samples, or an interval of knots without them)."""
     count = knots.shape[0] - DEGREE - 1
     d = y.shape[1]
     N = np.zeros((count, count))
@@ -48,11 +49,13 @@ def least_squares_spline(x, y, knots):
     work, values, deriv = basis_workspace()
     for i in range(x.shape[0]):
         first = basis_into(knots, count, x[i], work, values, deriv)
+        w = 1.0 if weights is None else weights[i]
         for p in range(DEGREE + 1):
+            wp = w * values[p]
             for c in range(d):
-                b[first + p, c] += values[p] * y[i, c]
+                b[first + p, c] += wp * y[i, c]
             for q in range(DEGREE + 1):
-                N[first + p, first + q] += values[p] * values[q]
+                N[first + p, first + q] += wp * values[q]
     for p in range(count):
         if N[p, p] <= 0.0:
             return np.zeros((count, d)), False

@@ -44,3 +44,13 @@ def test_least_squares_spline_says_when_a_coefficient_has_no_samples():
     knots = np.concatenate([[0.0] * 4, [1.0, 2.0, 3.0, 40.0, 50.0], [60.0] * 4])  # nothing beyond x = 10
     _, solvable = least_squares_spline(x, np.column_stack([x, x]), knots)
     assert not solvable
+
+
+def test_weighted_least_squares_spline_is_scipys_with_square_root_weights():
+    x, y = _curve(80, seed=5)
+    weights = np.random.default_rng(5).uniform(0.02, 1.0, len(x))
+    knots = np.concatenate([[0.0] * 4, np.linspace(0.0, x[-1], 9)[1:-1], [x[-1]] * 4])
+    coefficients, solvable = least_squares_spline(x, y, knots, weights)
+    reference = make_lsq_spline(x, y, knots, k=3, w=np.sqrt(weights))  # SciPy weighs residuals, not squares
+    assert solvable
+    np.testing.assert_allclose(evaluate(knots, coefficients, x)[0], reference(x), atol=1e-9)

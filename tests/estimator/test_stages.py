@@ -349,3 +349,9 @@ def test_the_coarse_keep_mask_covers_each_full_resolution_pixel_from_its_nearest
         rows = np.minimum((np.arange(y0, y1) + scale // 2) // scale, hc - 1)  # the last coarse row beyond
         cols = np.minimum((np.arange(x0, x1) + scale // 2) // scale, wc - 1)
         np.testing.assert_array_equal(out, grown[np.ix_(rows, cols)])
+
+
+def test_robust_profile_says_when_its_samples_lie_at_too_few_places():
+    x = np.repeat([0.1, 0.5, 0.9], 20)  # three places along the arm, no more: a cubic needs more
+    with pytest.raises(ValueError, match="singular"):
+        robust_spline_profile(x, 80 + 10 * x, np.ones_like(x), np.linspace(0, 1, 50), knots=6)
