@@ -183,11 +183,14 @@ def densify(nodes: np.ndarray, spacing_px: float = SAMPLE_SPACING_PX) -> tuple[n
     arc = _arc(nodes)
     count = max(int(arc[-1] / spacing_px) + 1, 8)
     at = np.linspace(0.0, arc[-1], count)
-    if len(nodes) < 4:
+    solved = False
+    if len(nodes) >= 4:
+        knots, coefficients, solved = interpolating_spline(arc, nodes)
+    if not solved:  # too few nodes for a cubic: straight between them
         points = np.column_stack([np.interp(at, arc, nodes[:, k]) for k in range(2)])
         tangent = np.gradient(points, axis=0)
         return points, tangent / (np.linalg.norm(tangent, axis=1, keepdims=True) + 1e-12)
-    points, tangent = evaluate(*interpolating_spline(arc, nodes), at)
+    points, tangent = evaluate(knots, coefficients, at)
     return points, tangent / (np.linalg.norm(tangent, axis=1, keepdims=True) + 1e-12)
 
 

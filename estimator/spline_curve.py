@@ -18,8 +18,9 @@ from estimator.bspline import DEGREE, basis_into, basis_workspace
 
 @numba.njit(cache=True, nogil=True)
 def interpolating_spline(x, y):
-    """Knots (n + 4,) and coefficients (n, d) of the cubic through ``y`` (n, d) at increasing ``x`` (n >= 4),
-    with not-a-knot ends (the third derivative continuous across the second and last-but-one samples)."""
+    """Knots (n + 4,), coefficients (n, d) and whether they were found, of the cubic through ``y`` (n, d)
+    at strictly increasing ``x`` (n >= 4), with not-a-knot ends (the third derivative continuous across
+    the second and last-but-one samples)."""
     n = x.shape[0]
     knots = np.empty(n + DEGREE + 1)
     for j in range(DEGREE + 1):
@@ -33,15 +34,18 @@ def interpolating_spline(x, y):
         first = basis_into(knots, n, x[i], work, values, deriv)
         for j in range(DEGREE + 1):
             A[i, first + j] = values[j]
-    return knots, _solve_banded(A, y)[0]
+    coefficients, solved = _solve_banded(A, y)
+    return knots, coefficients, solved
 
 
 @numba.njit(cache=True, nogil=True)
 def least_squares_spline(x, y, knots, weights=None):
     """Coefficients (count, d) of the cubic on ``knots`` (``count`` + 4, end knots repeated four times)
-    nearest ``y`` (m, d) at ``x`` in the least-squares sense, each squared residual weighted by
-    ``weights`` (m,) if given; ``ok`` False where the normal matrix is singular (a coefficient
-    without samples, or an interval of knots without them)."""
+    nearest ``y`` (m, d) at ``x`` (sorted, non-decreasing) in the least-squares sense, each squared
+    residual weighted by ``weights`` (m,) if given; and whether the fit is determined: False where
+    the samples do not meet the Schoenberg-Whitney condition (some basis function has no sample of
+    its own: too few distinct places, or a stretch of knots without samples), whose normal matrix
+    is singular."""
     count = knots.shape[0] - DEGREE - 1
     d = y.shape[1]
     N = np.zeros((count, count))
@@ -56,10 +60,30 @@ def least_squares_spline(x, y, knots, weights=None):
                 b[first + p, c] += wp * y[i, c]
             for q in range(DEGREE + 1):
                 N[first + p, first + q] += wp * values[q]
-    for p in range(count):
-        if N[p, p] <= 0.0:
-            return np.zeros((count, d)), False
+    if not _schoenberg_whitney(x, knots, count, weights):
+        return np.zeros((count, d)), False
     return _solve_banded(N, b)
+
+
+@numba.njit(cache=True, nogil=True)
+def _schoenberg_whitney(x, knots, count, weights):
+    """Whether distinct samples of sorted ``x`` (with a positive weight, if weighted) can be matched one
+    to each basis function, inside its support (the end samples may lie on the end knots): then,
+    and only then, the least-squares normal matrix is positive definite (FITPACK's check ``fpchec``).
+    Greedy, left to right: each basis function takes the first unused sample inside it."""
+    j = 0
+    last = -np.inf
+    for i in range(x.shape[0]):
+        if j == count:
+            break
+        xi = x[i]
+        if xi <= last or (weights is not None and not weights[i] > 0.0):
+            continue
+        lo, hi = knots[j], knots[j + DEGREE + 1]
+        if (xi > lo or (lo == knots[0] and xi >= lo)) and (xi < hi or (hi == knots[-1] and xi <= hi)):
+            j += 1
+            last = xi
+    return j == count
 
 
 @numba.njit(cache=True, nogil=True)
@@ -82,7 +106,10 @@ def _solve_banded(A, b):
             x[i, c] = b[i, c]
     for k in range(n):
         pivot = U[k, k]
-        if not (abs(pivot) > 0.0 and np.isfinite(pivot)):
+        scale = 0.0
+        for j in range(n):
+            scale = max(scale, abs(A[k, j]))
+        if not (abs(pivot) > 1e-12 * scale and np.isfinite(pivot)):  # vanished, up to rounding
             return x, False
         for i in range(k + 1, min(n, k + band + 1)):
             f = U[i, k] / pivot

@@ -640,7 +640,7 @@ def _damped_step(A, g, cost, damping, bases, control, radii, bins, baseline, foc
     """One Levenberg-Marquardt step: the damping raised until a step lowers the cost.
 
     Returns (status, control, radii, new cost, damping): status 1 when a step was taken, 0 when
-    none lowered the cost before the damping ran out, -1 when the system is singular."""
+    none lowered the cost before the damping ran out, -1 when the system is singular or not finite."""
     n = g.shape[0]
     count = control.shape[0]
     H = np.empty((n, n))
