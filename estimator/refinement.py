@@ -105,15 +105,9 @@ def _chords(mask, points, normals, max_half_px, step):
     return mids, half, ok
 
 
-def edge_distance(mask01: np.ndarray, start: np.ndarray, direction: np.ndarray, max_px: float) -> float:
-    """Distance from ``start`` along ``direction`` to the silhouette edge (-1 if not reached)."""
-    d = np.asarray(direction, dtype=np.float64)
-    d = d / np.linalg.norm(d)
-    return float(_edge_distance(mask01, float(start[0]), float(start[1]), d[0], d[1], float(max_px), 0.5))
-
-
 def edge_distances(mask01: np.ndarray, start: np.ndarray, directions: np.ndarray, max_px: float) -> np.ndarray:
-    """``edge_distance`` along each of several directions (K, 2) from one start: (K,)."""
+    """Distance from ``start`` to the silhouette's edge (the mask's 0.5 crossing) along each of several
+    directions (K, 2), or -1 where it is not reached within ``max_px``: (K,)."""
     d = np.asarray(directions, dtype=np.float64)
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
     return _edge_distances(mask01, float(start[0]), float(start[1]), d, float(max_px), 0.5)
