@@ -25,6 +25,8 @@ from estimator.config_file import ConfigFileError, TableReader, read_toml
 _SIDES = ("left", "right")
 _DIST_LENGTHS = (0, 1, 2, 3, 4, 5, 8, 12, 14)
 # undistortPoints iterates; its default of 5 iterations leaves ~0.1 px error at ZED corners.
+_INTER_BITS = 5  # OpenCV's fixed-point maps: fractions in 1/32 pixel (INTER_BITS)
+_INTER_TAB = 1 << _INTER_BITS
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10)
 
 
@@ -395,6 +397,7 @@ class Rectification:
     P: dict  # side -> 3x4 rectified projection matrix (P["right"][0, 3] = -f B)
     size: tuple[int, int]  # rectified canvas (width, height)
     _maps: dict = field(default_factory=dict, repr=False)
+    _nearest: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def from_calibration(cls, calib: StereoCalibration) -> Rectification:
@@ -449,13 +452,32 @@ class Rectification:
             )
         return self._maps[side]
 
+    def nearest_map(self, side: str, step: int = 1) -> np.ndarray:
+        """A ``cv2.remap`` map (CV_16SC2, no second map) to the raw pixel nearest every ``step``-th canvas pixel.
+
+        Nearest-pixel lookups take this rounded map rather than the fixed-point pair of ``maps``: OpenCV
+        5.0 read that pair's fractions the wrong way round under ``INTER_NEAREST`` (3.1 -> 4, 3.9 -> 3;
+        fixed in 5.1), so the same images gave other coarse masks on another install.
+        """
+        key = (side, step)
+        if key in self._nearest:
+            return self._nearest[key]
+        m1, m2 = self.maps(side)
+        m1, m2 = m1[::step, ::step], m2[::step, ::step].astype(np.int32)
+        # The second map indexes OpenCV's interpolation table: the x fraction in its low bits, y above.
+        frac = np.stack([m2 & (_INTER_TAB - 1), m2 >> _INTER_BITS], axis=-1)
+        self._nearest[key] = np.ascontiguousarray(m1 + (2 * frac >= _INTER_TAB).astype(np.int16))
+        return self._nearest[key]
+
     def rectify_image(self, image: np.ndarray, side: str, roi: tuple[int, int, int, int] | None = None,
                       interpolation: int = cv2.INTER_LINEAR) -> np.ndarray:
         """Resample a raw image onto the rectified canvas, or onto ``roi = (x0, y0, x1, y1)`` of it."""
         m1, m2 = self.maps(side)
+        if interpolation == cv2.INTER_NEAREST:
+            m1, m2 = self.nearest_map(side), None  # see nearest_map
         if roi is not None:
             x0, y0, x1, y1 = roi
-            m1, m2 = m1[y0:y1, x0:x1], m2[y0:y1, x0:x1]
+            m1, m2 = m1[y0:y1, x0:x1], None if m2 is None else m2[y0:y1, x0:x1]
         return cv2.remap(image, m1, m2, interpolation, borderMode=cv2.BORDER_CONSTANT)
 
     def rectify_points(self, uv_raw: np.ndarray, side: str) -> np.ndarray:

@@ -172,9 +172,7 @@ class CenterlineEstimator:
         # 1/4 of a 1280-pixel image; smaller images are searched at a finer scale (a VGA ZED at 1/2).
         self._scale = int(np.clip(calibration.image_size[0] // COARSE_WIDTH_PX, 1, 4))
         for side in SIDES:
-            m1, m2 = self._rect.maps(side)
-            self._coarse_maps[side] = (np.ascontiguousarray(m1[::self._scale, ::self._scale]),
-                                       np.ascontiguousarray(m2[::self._scale, ::self._scale]))
+            self._coarse_maps[side] = self._rect.nearest_map(side, self._scale)
         self._base_hint = None
         if self.config.base_pixel is not None:
             self._base_hint = self._rect.rectify_points(np.array([self.config.base_pixel]), "left")[0]
@@ -214,19 +212,29 @@ class CenterlineEstimator:
         w, h = self.calibration.image_size
         cfg, baseline = self.config, self._rect.baseline_m
         # A straight tube of the configured radius and length at the depth where it spans 70 % of the
-        # image's height: a frame every check accepts, so every stage (the tube fit too) runs and compiles.
+        # image's height, with flat ends as the tube fit models them (a thick cv2.line has round caps,
+        # whose outline the fitted end rightly refuses): a frame every check accepts, so every stage
+        # (the tube fit too) runs and compiles. Its outline is drawn densely on the rectified canvas and
+        # taken into the raw image, so the lens's distortion bends it as it bends the real arm.
         length = cfg.arm_length_m if cfg.arm_length_m is not None else 0.6 * h * baseline / (0.1 * w)
         disparity = min(0.1 * w, 0.7 * h * baseline / length)
-        thickness = max(int(round(2.0 * cfg.arm_radius_m * disparity / baseline)), 3)
+        half = max(cfg.arm_radius_m * disparity / baseline, 1.5)
         span = length * disparity / baseline
+        # Centred on the raw image's centre as the rectified canvas (larger than the image) places it.
+        cx, cy = self._rect.rectify_points(np.array([[0.5 * w, 0.5 * h]]), "left")[0]
+        along = np.linspace(cy - 0.5 * span, cy + 0.5 * span, 64)
         images = []
         for side, shift in (("left", 0.0), ("right", -disparity)):
             image = np.full((h, w, 3), (200, 190, 180), np.uint8)
-            x = 0.5 * w + 0.5 * disparity + shift
-            top, bottom = np.array([[x, 0.5 * (h - span)]]), np.array([[x, 0.5 * (h + span)]])
-            ends = [self._rect.unrectify_points(p, side)[0] for p in (top, bottom)]
-            cv2.line(image, tuple(int(v) for v in ends[0]), tuple(int(v) for v in ends[1]), (20, 110, 245),
-                     thickness)
+            x = cx + 0.5 * disparity + shift
+            outline = np.concatenate([np.column_stack([np.full_like(along, x - half), along]),
+                                      np.column_stack([np.full_like(along, x + half), along[::-1]])])
+            top = along[0]
+            mount = np.array([[x - 3 * half, top - half], [x + 3 * half, top - half], [x + 3 * half, top],
+                              [x - 3 * half, top]])
+            for shape, colour in ((mount, (40, 40, 40)), (outline, (20, 110, 245))):
+                raw = self._rect.unrectify_points(shape, side)
+                cv2.fillPoly(image, [np.round(raw * 16).astype(np.int32)], colour, cv2.LINE_AA, shift=4)
             images.append(image)
         self.estimate(*images)
         self.reset()
@@ -438,7 +446,7 @@ class CenterlineEstimator:
             return remove_small_regions(with_specks(hsv_, low), min_area)
 
         def one_side(side):  # the coarse image, its gate with specks, and the tracked arm's part of it
-            hsv_ = cv2.cvtColor(cv2.remap(images[side], *self._coarse_maps[side], cv2.INTER_NEAREST),
+            hsv_ = cv2.cvtColor(cv2.remap(images[side], self._coarse_maps[side], None, cv2.INTER_NEAREST),
                                 cv2.COLOR_BGR2HSV)
             gate_ = with_specks(hsv_, self._gate_low)
             return hsv_, gate_, self._keep_tracked_side(side, gate_, min_area)

@@ -214,6 +214,9 @@ class _Eye:
     K_canvas: np.ndarray  # 3x3 ideal pinhole of the canvas, OpenCV conventions (top-down rows)
     map1: np.ndarray  # fixed-point remap maps: raw pixel -> bottom-up canvas position
     map2: np.ndarray
+    # The canvas pixel nearest each raw pixel (CV_16SC2, used without a second map) for the depth buffer:
+    # OpenCV 5.0 rounded the fixed-point pair the wrong way under INTER_NEAREST (fixed in 5.1).
+    nearest: np.ndarray
     residual_px: float  # worst round-trip error of the maps (raw -> ray -> raw), pixels
 
 
@@ -433,7 +436,7 @@ class StereoRenderer:
             self._static_raw[side] = raw
             self._static_done[side] = None if self.effects.legacy else self._sensors[side].static(raw)
         eye = self._eyes["left"]
-        zbuf = cv2.remap(self._static_canvas["left"][1], eye.map1, eye.map2, cv2.INTER_NEAREST,
+        zbuf = cv2.remap(self._static_canvas["left"][1], eye.nearest, None, cv2.INTER_NEAREST,
                          borderMode=cv2.BORDER_REPLICATE)
         self._static_depth = _gl_depth_to_metres(zbuf)
 
@@ -457,6 +460,7 @@ class StereoRenderer:
             v = (K_canvas[1, 1] * y + K_canvas[1, 2]).astype(np.float32)
             v_up = (height - 1) - v  # the canvas is read bottom-up
             map1, map2 = cv2.convertMaps(u, v_up, cv2.CV_16SC2)
+            nearest = np.stack([np.round(u), np.round(v_up)], axis=-1).clip(-32768, 32767).astype(np.int16)
             # Check the inversion with OpenCV's forward model on every 4th row and column and
             # the borders (projectPoints on all 0.9 M pixels would take a second per eye).
             w, h = calib.image_size
@@ -470,7 +474,7 @@ class StereoRenderer:
             if residual > 1e-3:
                 raise ValueError(f"{side} camera: the distortion cannot be inverted over the image "
                                  f"(round-trip error {residual:.3g} px); check its dist coefficients")
-            self._eyes[side] = _Eye(K_canvas, map1, map2, residual)
+            self._eyes[side] = _Eye(K_canvas, map1, map2, nearest, residual)
 
     def _material(self, rgb_display):
         return self._pyrender.MetallicRoughnessMaterial(
@@ -801,14 +805,14 @@ class StereoRenderer:
     def _depth_to_raw(self, zbuf: np.ndarray, bottom_up: bool) -> np.ndarray:
         eye = self._eyes["left"]
         if not bottom_up:  # pyrender's own read-back: already linear metres, 0 = background
-            z = cv2.remap(np.ascontiguousarray(zbuf[::-1]), eye.map1, eye.map2, cv2.INTER_NEAREST,
+            z = cv2.remap(np.ascontiguousarray(zbuf[::-1]), eye.nearest, None, cv2.INTER_NEAREST,
                           borderMode=cv2.BORDER_REPLICATE)
             z[z <= 0] = np.inf
             return z
         z = self._static_depth.copy()
         for x0, y0, x1, y1 in self._raw_boxes["left"]:  # the left image's boxes, from _to_raw
             if x1 > x0 and y1 > y0:
-                d = cv2.remap(zbuf, eye.map1[y0:y1, x0:x1], eye.map2[y0:y1, x0:x1], cv2.INTER_NEAREST,
+                d = cv2.remap(zbuf, eye.nearest[y0:y1, x0:x1], None, cv2.INTER_NEAREST,
                               borderMode=cv2.BORDER_REPLICATE)
                 z[y0:y1, x0:x1] = _gl_depth_to_metres(d)
         return z

@@ -57,6 +57,30 @@ def test_rectified_image_matches_rectified_points():
     assert np.hypot(xs.mean() - expected[0], ys.mean() - expected[1]) < 0.3
 
 
+@pytest.mark.parametrize("step", [1, 4])
+def test_nearest_lookups_take_the_nearest_raw_pixel_on_every_opencv(step):
+    """OpenCV 5.0 took the other neighbour under INTER_NEAREST with a fixed-point map pair (3.1 -> 4,
+    3.9 -> 3), so the coarse masks, and every estimate after them, depended on the installed release.
+    The rounded map gives the raw pixel nearest the exact float map's position on any release."""
+    rect = zed_like_calibration().rectification
+    w, h = rect.calibration.image_size
+    # Each raw pixel holds its own coordinates, so the lookup says which pixel it read.
+    xs, ys = np.meshgrid(np.arange(w, dtype=np.uint16), np.arange(h, dtype=np.uint16))
+    raw = np.dstack([xs, ys, np.zeros_like(xs)])
+    looked_up = rect.rectify_image(raw, "left", interpolation=cv2.INTER_NEAREST)[::step, ::step]
+    coarse = cv2.remap(raw, rect.nearest_map("left", step), None, cv2.INTER_NEAREST)
+    fx, fy = cv2.initUndistortRectifyMap(rect.calibration.K("left"), rect.calibration.dist("left").reshape(1, -1),
+                                         rect.R_rect["left"], rect.P["left"][:, :3], rect.size, cv2.CV_32FC1)
+    fx, fy = fx[::step, ::step], fy[::step, ::step]
+    inside = (fx > 1) & (fx < w - 2) & (fy > 1) & (fy < h - 2)
+    # The fixed-point maps hold the position to 1/32 pixel: a position within that of a half pixel may go either way.
+    clear = inside & (np.abs(fx - np.floor(fx) - 0.5) > 1 / 32) & (np.abs(fy - np.floor(fy) - 0.5) > 1 / 32)
+    for image in (looked_up, coarse):
+        assert np.array_equal(image[..., 0][clear], np.round(fx[clear])), "x"
+        assert np.array_equal(image[..., 1][clear], np.round(fy[clear])), "y"
+        assert np.all(np.abs(image[..., 0][inside].astype(float) - fx[inside]) <= 0.5 + 1 / 32)
+
+
 def test_save_load_round_trip(tmp_path):
     calib = zed_like_calibration()
     path = tmp_path / "calib.toml"
