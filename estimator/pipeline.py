@@ -81,6 +81,12 @@ MAX_POINT_STD_M = 0.04
 WARM_START_TUBE = False
 # A tip further than this from the last frame's: fit again from the last tube, keep the lower cost.
 SECOND_START_M = 0.003
+# ... unless it moved further than this many arm widths: the last tube is then no nearer the arm than the
+# cold start, and where the edges leave a stretch free (a baseplate across a bend) the two starts settle
+# in different shapes whose costs say nothing about which is right (frames 5 s apart, t = 58 s: the
+# last tube's shape won by cost and lay 15 mm off there; 64-110 mm moves, against at most 26 mm
+# between the study's frames 1 s apart and about 1 mm at 10 fps).
+SECOND_START_MAX_WIDTHS = 1.0
 MIN_CLEAN_CHORDS = 0.9  # below this share of clean chords after one refinement pass, a second one runs
 REFINE_PASSES = 1  # chord passes of the 2D refinement (the tube fit does the sub-pixel work since)
 MAX_CORRIDOR_CUT = 0.1  # share of the arm-coloured pixels touching the corridor that it may cut away
@@ -742,8 +748,10 @@ class CenterlineEstimator:
                                 initial_control=self._warm_fit.control.copy(),
                                 tip_outline={k: v.copy() for k, v in tip_outline.items()})
         fit = fit_from(warm_control, edges)
+        moved = self._moved_from_last(fit)
+        near = SECOND_START_MAX_WIDTHS * 2.0 * float(np.mean(self._radius))
         self._moving_fast = (warm_control is None and self._warm_fit is not None
-                             and self._moved_from_last(fit) > SECOND_START_M)
+                             and (fit is None or SECOND_START_M < moved <= near))
         if second is not None and not self._moving_fast:
             second.cancel()
         if self._moving_fast:

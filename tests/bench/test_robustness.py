@@ -38,24 +38,17 @@ def reduced(tmp_path_factory):
     return out, result
 
 
-# Measured misses on this reduced set (seed 0), each xfail(strict) until fixed; figures measured after
-# the tube fit's robust loss came to read residuals in units of their sigma (commit d87ef5c); the same
-# at b5e5d2e, after the checks for stretches and tip outlines the tube does not explain.
-# The ramp's last frames are the hard ones (t = 47-58 s: the arm runs along the image rows past the
-# second baseplate, so depth there rests on the apparent width: 10-16 mm off at one point while the
-# fit's own standard deviation there says 4-8 mm). The frames are 5 s apart, so each starts nearly cold.
+# Measured misses on this reduced set (seed 0), each xfail(strict) until fixed; measured 2026-12-02 once the
+# coarse masks read the nearest raw pixels (OpenCV 5.0 read the other neighbour, and every figure before
+# that date was measured on its misread masks; occluded's false valid frame went with them).
+# The frames are 5 s apart, so each starts nearly cold; the ramp's last frames are the hard ones (the arm
+# runs along the image rows past the second baseplate, so depth there rests on the apparent width).
 KNOWN_MISSES = {
-    "dim": "11/12 valid (t = 36.9 s: the tip's last 150 mm without edges in both images), 2 false valid frames "
-           "(t = 47.5 s: the tip 18.0 mm off; t = 58 s: 10.3 mm at the second baseplate) and RMSE 2.14 mm = 1.45x "
-           "clean (measured 2026-12-02 with the twin's arm radius, 24.3 mm, as the prior; with 25 mm the tip at "
-           "47.5 s was 10.4 mm off)",
-    "bright_warm": "11/12 valid (t = 52.7 s: the cold search stops where the arm bends through about 90 degrees "
-                   "at a baseplate, one tube width aside: only 213 mm found)",
-    "blur": "5/12 valid (2 with the tip hidden, 4 with more than 4 arm widths bridged, 1 whose centerlines do not "
-            "match row by row), 2 false valid (t = 10.5 s: the tip 12.9 mm off; t = 52.7 s: the base 16.7 mm), "
-            "RMSE 3.58 mm = 2.43x clean",
-    "occluded": "1 false valid frame (t = 58 s: 10.9 mm at the second baseplate, where the arm runs along the rows; "
-                "10.4 mm with the 25 mm radius prior, 8.8 mm before the robust loss read residuals in sigma units)",
+    "dim": "11/12 valid (t = 36.9 s: left and right centerlines do not match row by row), 1 false valid "
+           "(t = 42.2 s: 14.6 mm off at the tip), RMSE 1.96 mm = 1.37x clean",
+    "bright_warm": "1 false valid frame (t = 58 s: 11.5 mm at the second baseplate), RMSE 1.87 mm = 1.31x clean",
+    "blur": "10/12 valid (t = 26.4 s: the base hidden over 108 mm; t = 58 s: only 207 mm found), 3 false valid "
+            "(t = 15.8, 31.6, 47.5 s: the tip 25.0, 16.7 and 15.4 mm off), RMSE 2.75 mm = 1.92x clean",
 }
 
 
