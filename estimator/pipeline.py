@@ -88,6 +88,7 @@ SECOND_START_M = 0.003
 # between the study's frames 1 s apart and about 1 mm at 10 fps).
 SECOND_START_MAX_WIDTHS = 1.0
 MIN_CLEAN_CHORDS = 0.9  # below this share of clean chords after one refinement pass, a second one runs
+MIN_WARM_CLEAN_CHORDS = 0.7  # below this share from the last frame's chain, the image is traced cold too (lab: >= 0.74)
 REFINE_PASSES = 1  # chord passes of the 2D refinement (the tube fit does the sub-pixel work since)
 MAX_CORRIDOR_CUT = 0.1  # share of the arm-coloured pixels touching the corridor that it may cut away
 MAX_UNCOVERED = 0.01  # share of arm samples a warm-started chain may leave further than a width from it
@@ -412,16 +413,18 @@ class CenterlineEstimator:
         if not cfg.medial_refinement:
             return nodes, None, 0.0
         with _timed(timings, "refine"):
-            # The SOM's chain is close to the axis; the baselines' zig-zag needs a second pass.
-            passes = REFINE_PASSES if cfg.centerline == "som" else 2
-            refined = refinement_passes(mask, nodes, extend_ends=cfg.extend_ends)
-            curve = None
-            for _ in range(passes):
-                curve = next(refined, None)
-            if passes < 2 and curve is not None and curve.valid.mean() < MIN_CLEAN_CHORDS:
-                # Nodes that lag a fast swing leave the chords oblique near the tip: a second pass,
-                # with normals from the first, straightens them.
-                curve = next(refined, None)
+            curve = self._refined(mask, nodes)
+            if (curve is not None and warm is not None and cfg.mode == "default" and not started_over
+                    and curve.valid.mean() < MIN_WARM_CLEAN_CHORDS):
+                # A blurred arm's mask is ragged, and a chain carried over from the last frame can
+                # settle off its axis there: few chords come out clean (44-68 % of them against 84 %
+                # traced cold, blur, where the arm then went unmeasured over 200-400 mm). Traced
+                # again cold, the curve with more clean chords is kept.
+                with _timed(timings, "centerline"):
+                    cold = centerline_nodes(mask, samples, cfg, warm=None, base_hint=hint)
+                cold_curve = self._refined(mask, cold) if len(cold) >= 3 else None
+                if cold_curve is not None and cold_curve.valid.mean() > curve.valid.mean():
+                    nodes, curve = cold, cold_curve
             if curve is None:
                 raise _NoArmError(f"the {side} centerline does not follow the silhouette")
             width = 2.0 * float(np.nanmedian(curve.half_width_px))
@@ -433,6 +436,21 @@ class CenterlineEstimator:
             _check_self_approach(curve.points, width, cfg.max_self_approach, side)
             curve = curve.shifted(offset)
             return resample_polyline(curve.points, cfg.n_points), curve, width
+
+    def _refined(self, mask: np.ndarray, nodes: np.ndarray) -> Centerline2D | None:
+        """The chain's nodes moved onto the silhouette's chord midpoints (``estimator.refinement``),
+        or None where the chain does not follow the silhouette."""
+        # The SOM's chain is close to the axis; the baselines' zig-zag needs a second pass.
+        passes = REFINE_PASSES if self.config.centerline == "som" else 2
+        refined = refinement_passes(mask, nodes, extend_ends=self.config.extend_ends)
+        curve = None
+        for _ in range(passes):
+            curve = next(refined, None)
+        if passes < 2 and curve is not None and curve.valid.mean() < MIN_CLEAN_CHORDS:
+            # Nodes that lag a fast swing leave the chords oblique near the tip: a second pass,
+            # with normals from the first, straightens them.
+            curve = next(refined, None)
+        return curve
 
     def _locate(self, images: dict[str, np.ndarray]) -> dict[str, tuple[tuple[int, int, int, int], np.ndarray]]:
         """Where the arm is in each image: a region of interest and the coarse mask of its pixels.
@@ -751,16 +769,18 @@ class CenterlineEstimator:
         moved = self._moved_from_last(fit)
         near = SECOND_START_MAX_WIDTHS * 2.0 * float(np.mean(self._radius))
         self._moving_fast = (warm_control is None and self._warm_fit is not None
-                             and (fit is None or SECOND_START_M < moved <= near))
+                             and (SECOND_START_M < moved <= near or (moved > near and not _acceptable(fit))))
         if second is not None and not self._moving_fast:
             second.cancel()
         if self._moving_fast:
             # A second start from the previous frame's tube: the fit can settle where a bend near the
             # tip trades depth for shape (late ramp, lab: the tip 20 mm off in depth at a higher cost
             # than the tube near the truth). Only where the tube moved far from the last frame's
-            # (tracking slowly, both starts end alike). The lower cost wins.
+            # (tracking slowly, both starts end alike). The lower cost wins. Moved further than an arm
+            # width, the last tube is only a fallback where the first start failed or left a stretch
+            # unconstrained (a 0.5 s sweep's return: the base 97 mm uncertain, 4 mm from the last tube).
             other = second.result() if second is not None else fit_from(self._warm_fit.control, edges)
-            if other is not None and (fit is None or other.cost < fit.cost):
+            if other is not None and (fit is None or (other.cost < fit.cost if moved <= near else _acceptable(other))):
                 fit = other
         if fit is None:
             raise _NoArmError("the tube could not be fitted to the silhouettes' edges")
@@ -937,6 +957,14 @@ def _timed(timings: dict, stage: str):
         yield
     finally:
         timings[stage] = timings.get(stage, 0.0) + (time.perf_counter() - start) * 1e3
+
+
+def _acceptable(fit: TubeFit | None) -> bool:
+    """Whether a fit exists and the images constrain every stretch of it (see MAX_POINT_STD_M)."""
+    return fit is not None and float(np.max(fit.point_std_m(_STD_CHECK_AT))) <= MAX_POINT_STD_M
+
+
+_STD_CHECK_AT = np.linspace(0.0, 1.0, 21)
 
 
 def _silhouette_edges(image: np.ndarray, mask: np.ndarray, curve: Centerline2D, offset: np.ndarray):
