@@ -81,11 +81,11 @@ MAX_POINT_STD_M = 0.04
 WARM_START_TUBE = False
 # A tip further than this from the last frame's: fit again from the last tube, keep the lower cost.
 SECOND_START_M = 0.003
-# ... unless it moved further than this many arm widths: the last tube is then no nearer the arm than the
-# cold start, and where the edges leave a stretch free (a baseplate across a bend) the two starts settle
-# in different shapes whose costs say nothing about which is right (frames 5 s apart, t = 58 s: the
-# last tube's shape won by cost and lay 15 mm off there; 64-110 mm moves, against at most 26 mm
-# between the study's frames 1 s apart and about 1 mm at 10 fps).
+# Moved further than this many arm widths, the last tube is only a fallback (for a first start the images
+# leave unconstrained): it is then no nearer the arm than the cold start, and where the edges leave a
+# stretch free (a baseplate across a bend) the two starts settle in different shapes whose costs say
+# nothing about which is right (frames 5 s apart, t = 58 s: the last tube's shape won by cost and lay
+# 15 mm off there; 64-110 mm moves, against at most 26 mm between the study's frames 1 s apart).
 SECOND_START_MAX_WIDTHS = 1.0
 MIN_CLEAN_CHORDS = 0.9  # below this share of clean chords after one refinement pass, a second one runs
 MIN_WARM_CLEAN_CHORDS = 0.7  # below this share from the last frame's chain, the image is traced cold too (lab: >= 0.74)
