@@ -355,9 +355,11 @@ class LiveView:
 
         previous = signal.signal(signal.SIGTERM, stop) if threading.current_thread() is threading.main_thread() \
             else None
-        print(f"softarm: the web viewer keeps serving the recording at {self.url} ; press Ctrl-C to stop",
-              file=out, flush=True)
         try:
+            # Inside the try: whoever reads this line may press Ctrl-C at once, before a loaded machine
+            # has run the next statement (CI saw the run die of an uncaught KeyboardInterrupt there).
+            print(f"softarm: the web viewer keeps serving the recording at {self.url} ; press Ctrl-C to stop",
+                  file=out, flush=True)
             while True:
                 time.sleep(0.5)
         except KeyboardInterrupt:

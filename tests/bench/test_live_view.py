@@ -236,6 +236,35 @@ def test_view_web_serves_the_viewer_and_prints_its_url_until_ctrl_c(rerun_env, t
     assert len(load_run(out).frames) == 3
 
 
+class _CtrlCAtFlush:
+    """A terminal whose user presses Ctrl-C the moment a line about serving reaches it."""
+
+    def __init__(self) -> None:
+        self.text = ""
+
+    def write(self, text: str) -> int:
+        self.text += text
+        return len(text)
+
+    def flush(self) -> None:
+        if "keeps serving" in self.text and "stopped" not in self.text:
+            raise KeyboardInterrupt
+
+
+def test_ctrl_c_right_after_the_serving_line_stops_the_viewer_cleanly(rerun_env, tmp_path):
+    """CI once pressed Ctrl-C as soon as it read the line, and the run died of a KeyboardInterrupt raised
+    before the wait had begun (exit -2, not 0): the line is now printed inside the wait's guard."""
+    view = LiveView(ViewTarget(rrd=tmp_path / "x.rrd"))
+    try:
+        view.url = "http://127.0.0.1:9/?url=test"
+        out = _CtrlCAtFlush()
+        view.serve_until_interrupted(out=out)  # returns: the interrupt is the way to stop it
+        assert "keeps serving" in out.text and "web viewer stopped" in out.text
+    finally:
+        view.url = None
+        view.close()
+
+
 def test_view_without_a_display_fails_at_once_and_says_what_to_use(rerun_env, tmp_path):
     env = {k: v for k, v in rerun_env.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     out = tmp_path / "run"
