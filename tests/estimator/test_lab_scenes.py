@@ -56,10 +56,9 @@ def _summary(results, condition):
 # Measured failures (default mode, these seeds, estimator at commit 59a18e3), each marked xfail(strict) until fixed.
 # A 9 px pan over the brick wall is the hard case: without the wall the same frames are within 1 mm.
 # blur's base 53 mm off came back valid until a hidden base was refused.
-FALSE_VALID: dict[str, str] = {
-    "blur": "towards_camera valid 13.3 mm off (the other four within 6.0 mm); measured 2026-12-02 once the coarse "
-            "masks read the nearest pixels (OpenCV 5.0's misread coarse masks had it within 10 mm)",
-}
+# blur's towards_camera came back valid 13.3 mm off once the coarse masks read the nearest pixels (2026-12-02),
+# until a blurred edge's sigma grew by 0.6 of its excess step width rather than 0.3.
+FALSE_VALID: dict[str, str] = {}
 # blur was 4 of 5 valid at 5.4 mm (towards_camera 9.8) until blurred edges were weighted by their step's width.
 INACCURATE: dict[str, str] = {}
 
