@@ -8,10 +8,13 @@ background's level just outside (an anti-aliased or blurred step crosses its mid
 true edge). The levels are read where the profile has settled: a first crossing tells how wide the
 step is (a fast pan smears it over several pixels), and the levels are read again beyond it.
 
-The profile is the colour projected onto the arm-minus-background difference in a luma-weighted
-space: a ZED delivers YUYV 4:2:2, whose chroma is shared by horizontal pixel pairs, so chroma
-edges can sit half a pixel off; luma is sampled at every pixel. Where the two levels barely
-differ (a background of the arm's colour, an occluder's shadow) no edge is reported.
+The profile is the colour projected onto the arm-minus-background difference in YCbCr, chroma
+counted as much as luma. A lab's clutter is mostly luma (brick joints, wood grain, shadows) while
+the arm differs from it mostly in chroma, so a profile weighted towards luma crossed halfway where
+the texture said, not where the arm ended. The price is YUYV 4:2:2 (the ZED over UVC), whose
+chroma is shared by horizontal pixel pairs: where chroma carries the edge, a blurred step can come
+back 0.1-0.25 px off with the pair's phase (``tests/estimator/test_edges.py``). Where the two
+levels barely differ (a background of the arm's colour, an occluder's shadow) no edge is reported.
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ import numpy as np
 STEP_PX = 0.5  # sampling step along the normal
 SEARCH_PX = 3.0  # how far from the mask's edge the intensity edge may lie
 LEVEL_PX = 2.5  # the inside and outside levels are read over this span, just beyond the search window
-CHROMA_WEIGHT = 0.35  # weight of Cb, Cr against luma in the profile
+CHROMA_WEIGHT = 1.0  # weight of Cb, Cr against luma in the profile (0.35 before 2026-12-02: see the README)
 MIN_CONTRAST = 12.0  # weighted units (about digital numbers of luma): below it, no edge
 AREA_WINDOW_PX = 1.5  # half the window of the area step; 0 keeps the interpolated crossing
 MAX_BLUR_PX = 6.0  # how wide a blurred step may be for its levels to be read beyond it
