@@ -33,7 +33,7 @@ from estimator.correspondence import MIN_SINE, compensate_nodes, match_rows
 from estimator.edges import subpixel_edges, subpixel_edges_and_steps
 from estimator.mount import MountLearner
 from estimator.profile import BASE_RAMP_WIDTHS, BASE_SKIP_WIDTHS, base_ramp, measured_radius_m, with_width_cue
-from estimator.refinement import Centerline2D, edge_distances, refinement_passes
+from estimator.refinement import Centerline2D, edge_distances, refinement_passes, window_medians
 from estimator.segmentation import (
     bounding_box,
     contour_points,
@@ -96,6 +96,10 @@ FOCUSED_STEP_PX = 2.0  # an edge's step (its 20-80 % rise) up to this wide count
 BLURRED_EDGE_SIGMA = 0.6  # beyond it, the edge's sigma grows by this share of the excess width (0.3 before:
 # 60-frame sets, false valid blur 7 -> 4, dim 1 -> 0, occluded 1 -> 0, random 1 -> 0, unseen random:1 13 -> 10,
 # random:2 6 -> 4; lab 1.29 -> 1.25 mm; 1.0 and 0.15 both worse on blur: 9 and 6 false valid)
+RESCUE_WINDOW_PX = 40.0  # unclean chords are compared with the clean ones within this arc either side
+RESCUE_TOLERANCE_PX = 0.8  # ... and kept within this of their width (half of it in centre) ...
+RESCUE_SPREADS = 3.0  # ... or this many robust spreads of the clean chords' widths, if larger
+RESCUE_GAP_WIDTHS = 1.0  # not beside a stretch without clean chords longer than this many arm widths
 EDGE_STRIDE = 1  # every sample of the 2D centerline (3 px apart); every second gave 1.84 mm, not 1.42, on the late ramp
 SIDES = ("left", "right")
 
@@ -985,6 +989,10 @@ def _silhouette_edges(image: np.ndarray, mask: np.ndarray, curve: Centerline2D, 
     normals = np.column_stack([-tangent[:, 1], tangent[:, 0]])
     pick = curve.valid & (np.arange(len(curve.valid)) % EDGE_STRIDE == 0)
     offsets, _, steps = subpixel_edges_and_steps(image, curve.points - offset, normals, curve.half_width_px, pick)
+    rescued = _rescued_chords(image, curve, offset, normals, offsets, pick)
+    if rescued is not None:
+        take, more, more_steps = rescued
+        offsets[take], steps[take] = more, more_steps
     points, centres, widths = [], [], []
     for column in range(2):
         ok = np.isfinite(offsets[:, column])
@@ -995,6 +1003,53 @@ def _silhouette_edges(image: np.ndarray, mask: np.ndarray, curve: Centerline2D, 
     mask01 = (mask > 0).astype(np.float32)
     outlines = tuple(_end_outline(image, mask01, offset, curve, end) for end in (0, -1))
     return np.concatenate(points), np.concatenate(centres), np.concatenate(widths), ends, outlines
+
+
+def _rescued_chords(image: np.ndarray, curve: Centerline2D, offset: np.ndarray, normals: np.ndarray,
+                    offsets: np.ndarray, clean: np.ndarray):
+    """Edges of the chords the mask called unclean where the image itself shows the tube there:
+    ``(chords taken, their offsets (K, 2), their steps (K, 2))``, or None.
+
+    A blurred arm over a textured wall leaves a ragged mask (the halo of the blurred step passes
+    the colour gate in patches), so half the chords of a straight arm fail the mask's width test
+    and whole sections went unmeasured (the twin's blur preset: 220-400 mm bridged, the frame
+    invalid). The image's own edges there agree with their clean neighbours' (most within 0.3 px
+    in width and centre). Each unclean chord between the outermost clean ones is searched at the
+    width interpolated from the clean chords and kept only where both its edges are found and its
+    width and centre agree with the clean chords' within ``RESCUE_WINDOW_PX`` of arc: a chord cut
+    by a baseplate or an occluder, or one across the end cap, is several pixels off and stays out.
+    """
+    width = offsets[:, 1] - offsets[:, 0]
+    good = clean & np.isfinite(width)
+    idx = np.flatnonzero(good)
+    if len(idx) < 6:
+        return None
+    arc = curve.arc_px
+    probe = ~clean & (arc > arc[idx[0]]) & (arc < arc[idx[-1]])
+    if not probe.any():
+        return None
+    half = np.interp(arc, arc[idx], curve.half_width_px[idx])
+    # Beside a stretch longer than a width without clean chords (a baseplate, an occluder) a chord is
+    # partly cut even where its width passes (refinement._away_from_gaps): it stays out.
+    width_px = 2.0 * float(np.median(curve.half_width_px[idx]))
+    flags = np.concatenate([[1], clean.astype(np.int8), [1]])
+    for a, b in zip(np.flatnonzero(np.diff(flags) == -1), np.flatnonzero(np.diff(flags) == 1), strict=True):
+        if b - a >= 2 and arc[b - 1] - arc[a] > RESCUE_GAP_WIDTHS * width_px:
+            probe &= (np.abs(arc - arc[a]) >= 0.5 * width_px) & (np.abs(arc - arc[b - 1]) >= 0.5 * width_px)
+    more, _, more_steps = subpixel_edges_and_steps(image, curve.points - offset, normals, half, probe)
+    centre = 0.5 * (offsets[:, 0] + offsets[:, 1])
+    lo = np.searchsorted(arc[idx], arc - RESCUE_WINDOW_PX)
+    hi = np.searchsorted(arc[idx], arc + RESCUE_WINDOW_PX)
+    local_width = window_medians(width[idx], lo, hi, np.nan)
+    local_centre = window_medians(centre[idx], lo, hi, np.nan)
+    spread = 1.4826 * np.median(np.abs(width[idx] - local_width[idx]))
+    tolerance = max(RESCUE_TOLERANCE_PX, RESCUE_SPREADS * spread)
+    take = (probe & np.isfinite(more[:, 1] - more[:, 0])
+            & (np.abs(more[:, 1] - more[:, 0] - local_width) <= tolerance)
+            & (np.abs(0.5 * (more[:, 0] + more[:, 1]) - local_centre) <= 0.5 * tolerance))
+    if not take.any():
+        return None
+    return take, more[take], more_steps[take]
 
 
 def _edge_weights(steps: np.ndarray) -> np.ndarray:
