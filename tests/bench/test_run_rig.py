@@ -92,10 +92,10 @@ def test_a_failing_estimate_is_recorded_and_the_run_goes_on(rig_folder, board, m
     assert run.summary["invalid_reasons"]["estimator error: RuntimeError: boom"] == 1
 
 
-@pytest.mark.xfail(strict=True, reason="the recording's pair (320x240, a 9 px wide tube drawn with round caps, "
-                   "no mount) is valid cold, 19.8 mm off at the ends, and invalid warm: 'the base is hidden: its "
-                   "last 139 mm have no edges in both images' (measured 2026-12-02 once the coarse masks read the "
-                   "nearest pixels; OpenCV 5.0's misread masks had it valid warm too)")
+# The recording's pair (320x240, a 9 px wide tube drawn with round caps, no mount) was invalid warm ("the base
+# is hidden") until the chords a ragged mask calls unclean were measured from the image (2026-12-02). Its ends
+# come out 19-21 mm off warm and cold alike: the drawing's round caps are not the configured arm's ends, and
+# this test is about the warm start, not accuracy.
 def test_a_repeated_pair_is_estimated_warm_as_it_was_cold():
     calibration = small_calibration(WIDTH, HEIGHT)
     left, right, _ = draw_pair(calibration, arm_polyline_m())
