@@ -15,10 +15,16 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import warnings
 from collections.abc import Sequence
 
-import mujoco
+# The twin renders with pyrender, never through MuJoCo's own GL context. Left to choose one, MuJoCo
+# imports glfw, whose import probes the GLFW library in a child Python process; a study's worker
+# stopped while that probe ran left it to die on the closed pipe, printing a BrokenPipeError traceback
+# on the study's stderr (tests/bench/test_studies.py, under load).
+os.environ.setdefault("MUJOCO_GL", "disable")
+import mujoco  # noqa: E402 - after MUJOCO_GL
 import numpy as np
 
 import hardware.errors
