@@ -76,6 +76,16 @@ MAX_END_BRIDGE_WIDTHS = 1.0  # an end hidden over more than this many arm widths
 # The fit's covariance overstates the error of a well-seen arm (typically 3-15 mm at the tip, where
 # the error is 1-5 mm) but grows to 40-110 mm where an occluder hides the tip: only that is refused.
 MAX_POINT_STD_M = 0.04
+# Sliding along the axis is left out of a point's standard deviation (it moves no point off the
+# curve) but not out of where the tip is. A tip pointing nearly along a line of sight, or ending
+# behind the arm's nearer part, slides almost unseen: the twin's pressure sequences (random levels
+# on all seven valves, 4 x 60 frames, and a 60-frame sweep) put such tips 10-74 mm off along the
+# arm, valid, with 8-17 mm of this standard deviation; tips within 10 mm had up to 12 mm. Beyond
+# the 10 mm a valid frame promises, the frame is refused. On those 300 frames: false valid 14 -> 7,
+# the worst tip 74 -> 31 mm off, valid 253 -> 246; the ramp's study sets (60 and 12 frames per
+# condition) are unchanged. A bound at 7.8 mm caught four more but refused the ramp's middle frame
+# in the CI's sparse lab and dim sets (8-9 mm there, tracked 5 s apart).
+MAX_TIP_ALONG_STD_M = 0.010
 # Starting the fit from the previous frame's tube saves the disparity profile but measured worse
 # (2.8 against 2.2 mm on a late-ramp stretch of the twin): the profile starts it better.
 WARM_START_TUBE = False
@@ -851,6 +861,10 @@ class CenterlineEstimator:
             worst = int(np.argmax(std))
             raise _NoArmError(f"the images barely constrain the arm near point {worst} of {len(at)}: "
                               f"{std[worst] * 1e3:.0f} mm standard deviation")
+        along = float(fit.along_std_m(np.array([1.0]))[0])
+        if along > MAX_TIP_ALONG_STD_M:
+            raise _NoArmError(f"where the tip ends is uncertain: {along * 1e3:.0f} mm standard deviation along the arm "
+                              "(it points nearly along a line of sight, or its end is hidden behind the arm)")
         self._last_fit = fit
         source = (f"measured over {self._radius_frames} frames" if self._radius_frames else "configured")
         self._tube_extras = (measured, std, radius, source)

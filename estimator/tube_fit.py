@@ -130,6 +130,15 @@ class TubeFit:
         S = across @ S @ across
         return np.sqrt(np.maximum(np.linalg.eigvalsh(S)[:, -1], 0.0))
 
+    def along_std_m(self, us: np.ndarray) -> np.ndarray:
+        """(M,) standard deviation of each axis point along the axis, metres: where the tip ends.
+        Large where the tip points along a line of sight (its end's image barely moves as it slides)."""
+        if not np.all(np.isfinite(self.covariance)):
+            return np.full(len(us), math.inf)
+        S, tangents = _point_covariances(self.knots, self.control, self.covariance, np.asarray(us, np.float64))
+        tangents /= np.maximum(np.linalg.norm(tangents, axis=1, keepdims=True), 1e-12)
+        return np.sqrt(np.maximum(np.einsum("mi,mij,mj->m", tangents, S, tangents), 0.0))
+
 
 @numba.njit(cache=True, nogil=True)
 def _point_covariances(knots, control, covariance, us):

@@ -65,6 +65,17 @@ def test_the_rig_config_holds_only_what_differs_from_bench_toml():
     assert rig.rig == sim.rig and rig.recording == sim.recording and rig.report == sim.report
 
 
+def test_the_random_config_drives_every_valve_and_changes_nothing_else():
+    """bench_random.toml: the shapes the ramp never reaches (sections bent different ways), on the same
+    twin, estimator and limits."""
+    data = tomllib.loads((MODELS / "bench_random.toml").read_text())
+    assert set(data) == {"base", "experiment"} and data["base"] == "bench.toml"
+    sim, other = load_bench_config(), load_bench_config(MODELS / "bench_random.toml")
+    assert other.experiment.kind == "random" and set(other.experiment.channels) == set(sim.rig.valves.channels)
+    assert other.experiment.max_bar <= sim.rig.valves.max_pressure_bar
+    assert (other.backend, other.sim, other.estimator, other.rig) == (sim.backend, sim.sim, sim.estimator, sim.rig)
+
+
 def test_a_base_is_merged_table_by_table_and_keeps_its_own_relative_paths(tmp_path):
     (tmp_path / "lab").mkdir()
     base = tmp_path / "lab" / "base.toml"
