@@ -107,8 +107,11 @@ class EstimatorConfig:
             means part of the arm is hidden (folded behind itself, out of view): invalid.
             None disables the check.
         min_length_fraction: see ``arm_length_m``.
-        max_length_fraction: an estimate longer than this fraction of ``arm_length_m`` comes from
-            wrongly matched left and right centerlines (its points scatter in depth): invalid.
+        max_length_fraction: an estimate longer than this fraction of ``arm_length_m`` took in
+            something past the tip (an arm-coloured box just beyond it: the twin's lab, 835 mm for
+            its 685 mm arm, valid before) or comes from wrongly matched left and right centerlines
+            (its points scatter in depth): invalid. The twin's arm measures 645-736 mm on every
+            sequence tried (random levels on all seven valves); raise it for an arm that stretches more.
         max_bridge_widths: with the tube fit, the longest stretch of the 2D centerline without a
             clean silhouette chord (an occluder, a distractor the arm touches) that the fit may
             bridge, in arm widths; the fit then marks the points it bridged (``measured``).
@@ -178,7 +181,7 @@ class EstimatorConfig:
     max_gap_widths: float = 2.0
     max_bridge_widths: float = 4.0
     min_length_fraction: float = 0.7
-    max_length_fraction: float = 1.5
+    max_length_fraction: float = 1.15
     max_width_ratio: float = 1.35
     max_wide_fraction: float = 0.08
     plausibility_checks: bool | None = None
