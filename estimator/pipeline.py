@@ -909,7 +909,8 @@ class CenterlineEstimator:
                               "(folded behind itself or out of view)")
         if length > cfg.max_length_fraction * cfg.arm_length_m:
             raise _NoArmError(f"implausible estimate: {length * 1e3:.0f} mm long for a {cfg.arm_length_m * 1e3:.0f} mm "
-                              "arm (something past its tip taken for it, or left and right centerlines matched wrongly)")
+                              "arm (something past its tip taken for it, or left and right centerlines matched "
+                              "wrongly)")
 
     def _disparity_points(self, uv_left: np.ndarray, disparity: np.ndarray) -> np.ndarray:
         """(M, 3) rectified-frame points from left pixels and disparities (eqs. 7-8)."""
