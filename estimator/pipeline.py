@@ -82,7 +82,7 @@ MAX_POINT_STD_M = 0.04
 # on all seven valves, 4 x 60 frames, and a 60-frame sweep) put such tips 10-74 mm off along the
 # arm, valid, with 8-17 mm of this standard deviation; tips within 10 mm had up to 12 mm. Beyond
 # the 10 mm a valid frame promises, the frame is refused. On those 300 frames: false valid 14 -> 7,
-# the worst tip 74 -> 31 mm off, valid 253 -> 246; the ramp's study sets (60 and 12 frames per
+# the worst tip 74 -> 31 mm off, valid 233 -> 226; the ramp's study sets (60 and 12 frames per
 # condition) are unchanged. A bound at 7.8 mm caught four more but refused the ramp's middle frame
 # in the CI's sparse lab and dim sets (8-9 mm there, tracked 5 s apart).
 MAX_TIP_ALONG_STD_M = 0.010
