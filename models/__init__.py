@@ -1,5 +1,6 @@
 """The shipped model and configuration files: the arm (arm.toml), the stereo rig (camera.toml), the lab
-scenes (scene.toml), the twin (twin.toml) and the bench configs (bench.toml, bench_rig.toml).
+scenes (scene.toml), the twin (twin.toml) and the bench configs (bench.toml; bench_rig.toml, the same on
+the rig; bench_random.toml, random levels on every valve).
 
 They are package data, installed with the wheel beside this file, so the code finds them wherever it
 runs from (a checkout, ``pip install .``, another working directory) through ``importlib.resources``:
