@@ -122,10 +122,10 @@ class TubeFit:
     def point_std_m(self, us: np.ndarray) -> np.ndarray:
         """(M,) standard deviation of each axis point across the axis, along its least certain
         direction, metres. Sliding along the axis is left out: it moves no point off the curve."""
-        if not np.all(np.isfinite(self.covariance)):
-            return np.full(len(us), math.inf)  # a fit that knows nothing (no edge within a pixel)
-        S, tangents = _point_covariances(self.knots, self.control, self.covariance, np.asarray(us, np.float64))
-        tangents /= np.maximum(np.linalg.norm(tangents, axis=1, keepdims=True), 1e-12)
+        known = self._point_covariances(us)
+        if known is None:
+            return np.full(len(us), math.inf)
+        S, tangents = known
         across = np.eye(3)[None] - tangents[:, :, None] * tangents[:, None, :]
         S = across @ S @ across
         return np.sqrt(np.maximum(np.linalg.eigvalsh(S)[:, -1], 0.0))
@@ -133,11 +133,20 @@ class TubeFit:
     def along_std_m(self, us: np.ndarray) -> np.ndarray:
         """(M,) standard deviation of each axis point along the axis, metres: where the tip ends.
         Large where the tip points along a line of sight (its end's image barely moves as it slides)."""
-        if not np.all(np.isfinite(self.covariance)):
+        known = self._point_covariances(us)
+        if known is None:
             return np.full(len(us), math.inf)
+        S, tangents = known
+        return np.sqrt(np.maximum(np.einsum("mi,mij,mj->m", tangents, S, tangents), 0.0))
+
+    def _point_covariances(self, us: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """(M, 3, 3) covariance of each axis point and (M, 3) its unit tangent; None for a fit that
+        knows nothing (no edge within a pixel: its covariance is infinite)."""
+        if not np.all(np.isfinite(self.covariance)):
+            return None
         S, tangents = _point_covariances(self.knots, self.control, self.covariance, np.asarray(us, np.float64))
         tangents /= np.maximum(np.linalg.norm(tangents, axis=1, keepdims=True), 1e-12)
-        return np.sqrt(np.maximum(np.einsum("mi,mij,mj->m", tangents, S, tangents), 0.0))
+        return S, tangents
 
 
 @numba.njit(cache=True, nogil=True)
