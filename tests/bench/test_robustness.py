@@ -64,6 +64,25 @@ def test_every_condition_meets_its_targets_in_default_mode(reduced, condition):
     assert not problems, f"{condition} below its targets: {problems}\n{table}"
 
 
+# What each known miss still reaches (valid frames, at most so many false valid, RMSE ratio to clean):
+# a strict xfail passes however far a condition falls, so these hold the rest of its figures. The sixth
+# session's length bound on the noisy pre-fit curve halved blur's valid frames (11/12 -> 6/12) under
+# the xfail, unseen until the stored frames were re-run.
+KNOWN_MISS_FLOORS = {"dim": (11, 0, 1.10), "bright_warm": (11, 1, 1.20), "blur": (11, 0, 1.85),
+                     "occluded": (12, 1, 1.25)}
+
+
+@pytest.mark.parametrize("condition", sorted(KNOWN_MISS_FLOORS))
+def test_a_known_miss_does_not_fall_further(reduced, condition):
+    _, result = reduced
+    rows = {r["condition"]: r for r in result["rows"] if r["mode"] == "default"}
+    row, clean = rows[condition], rows["clean"]
+    valid, false_valid, ratio = KNOWN_MISS_FLOORS[condition]
+    table = "\n".join(result["headline"])
+    assert row["valid"] >= valid and row["false_valid"] <= false_valid, table
+    assert row["rmse_mm"] <= ratio * clean["rmse_mm"], table
+
+
 def test_the_study_writes_one_row_per_condition_and_mode_and_its_record(reduced):
     out, result = reduced
     rows = read_results(out / "results.csv")
