@@ -364,7 +364,8 @@ class Observation:
 
 
 class TwinTruth:
-    """The twin's exact backbone, rendered left depth, chamber pressures and simulated time."""
+    """The twin's exact backbone (as the frame shows it: mid-exposure), rendered left depth, chamber
+    pressures and simulated time."""
 
     exact = True  # the frames are scored against the exact backbone
 
@@ -376,7 +377,7 @@ class TwinTruth:
 
     def observe(self, frame: StereoFrame) -> Observation:
         start = time.perf_counter()
-        gt = self.twin.backbone()
+        gt = self.twin.frame_backbone()
         depth = quantize_depth(self.twin.camera.depth_left())
         channels = self.twin.valves.channels
         chamber = {k: round(float(v), 6) for k, v in zip(channels, self.twin.sim.chamber_bar, strict=True)}

@@ -116,7 +116,7 @@ class _BackboneTruth(TwinTruth):
 
     def observe(self, frame) -> Observation:
         start = time.perf_counter()
-        gt = self.twin.backbone()
+        gt = self.twin.frame_backbone()
         channels = self.twin.valves.channels
         chamber = {k: round(float(v), 6) for k, v in zip(channels, self.twin.sim.chamber_bar, strict=True)}
         return Observation(gt_m=gt, chamber_bar=chamber, sim_time_s=float(self.twin.time_s),

@@ -52,6 +52,7 @@ class SimStereoCamera(StereoCamera):
         self._index = 0
         self._last_depth: np.ndarray | None = None
         self._last_shape: ArmShape | None = None
+        self._exposed_shape: ArmShape | None = None
         self._last_time_s: float | None = None
         self._last_images: StereoImages | None = None
 
@@ -100,6 +101,7 @@ class SimStereoCamera(StereoCamera):
         self._index = 0
         self._last_depth = None
         self._last_shape = None
+        self._exposed_shape = None
         self._last_time_s = None
         self._last_images = None
 
@@ -125,6 +127,7 @@ class SimStereoCamera(StereoCamera):
         self._last_images = images
         self._last_depth = images.depth_left_m
         self._last_shape = shape
+        self._exposed_shape = self._renderer.exposed_shape(shape, t_s, previous)
         self._last_time_s = t_s
         return frame
 
@@ -169,8 +172,15 @@ class SimStereoCamera(StereoCamera):
 
     @property
     def last_shape(self) -> ArmShape | None:
-        """The arm shape the last grabbed frame shows (world frame), None before the first grab."""
+        """The arm's shape when the last grabbed frame was taken (world frame; the end of its exposure),
+        None before the first grab."""
         return self._last_shape
+
+    @property
+    def exposed_shape(self) -> ArmShape | None:
+        """The arm shape the last grabbed frame shows (world frame): at the middle of its exposure,
+        where its motion blur is centred (``StereoRenderer.exposed_shape``); None before the first grab."""
+        return self._exposed_shape
 
     def close(self) -> None:
         """Release the OpenGL context; closing twice is harmless."""

@@ -8,6 +8,7 @@
     calib = tw.camera.calibration                        # the calibration used to render
     gt = tw.backbone()                                   # (N, 3) m, left-camera frame, base -> tip
     gt_world = tw.backbone(frame="world")
+    truth = tw.frame_backbone()                          # what the last frame shows (its exposure's middle)
     depth = tw.camera.depth_left()                       # metres, last grabbed frame
 
 Frames: "world" is the arm's (metres, z up, origin at the arm base); "camera" is the left
@@ -23,6 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from estimator.config_file import ConfigFileError, TableReader, boolean, file_in, integer, number, read_toml
+from estimator.skeleton import resample_polyline
+from hardware.errors import DeviceError
 from hardware.interfaces import DEFAULT_CLAMP_TOLERANCE, MAX_CLAMP_TOLERANCE
 from twin.camera import SimStereoCamera
 from twin.params import ArmParams
@@ -222,6 +225,25 @@ class Twin:
         if n < 2:
             raise ValueError(f"n_points: expected at least 2, got {n}")
         points_world = self.sim.backbone(n)
+        return points_world if frame == "world" else self.rig.world_to_left_camera(points_world)
+
+    def frame_backbone(self, frame: str = "camera", n_points: int | None = None) -> np.ndarray:
+        """The exact backbone the last grabbed frame shows, base to tip, evenly spaced in arc length:
+        the arm at the middle of the frame's exposure (``SimStereoCamera.exposed_shape``), the shape its
+        motion blur is centred on; ``backbone()`` when the camera has no exposure time. A frame's truth.
+
+        Raises:
+            DeviceError: no frame has been grabbed since the camera connected.
+        """
+        if frame not in FRAMES:
+            raise ValueError(f"frame: expected one of {', '.join(map(repr, FRAMES))}, got {frame!r}")
+        n = self.config.backbone_points if n_points is None else int(n_points)
+        if n < 2:
+            raise ValueError(f"n_points: expected at least 2, got {n}")
+        shape = self.camera.exposed_shape
+        if shape is None:
+            raise DeviceError("frame_backbone(): no frame grabbed since the camera connected")
+        points_world = shape.points_world if len(shape.points_world) == n else resample_polyline(shape.points_world, n)
         return points_world if frame == "world" else self.rig.world_to_left_camera(points_world)
 
     # --- lifetime --------------------------------------------------------------------------------
