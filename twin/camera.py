@@ -53,6 +53,7 @@ class SimStereoCamera(StereoCamera):
         self._last_depth: np.ndarray | None = None
         self._last_shape: ArmShape | None = None
         self._exposed_shape: ArmShape | None = None
+        self._opening: tuple[ArmShape, float] | None = None
         self._last_time_s: float | None = None
         self._last_images: StereoImages | None = None
 
@@ -102,6 +103,7 @@ class SimStereoCamera(StereoCamera):
         self._last_depth = None
         self._last_shape = None
         self._exposed_shape = None
+        self._opening = None
         self._last_time_s = None
         self._last_images = None
 
@@ -119,8 +121,12 @@ class SimStereoCamera(StereoCamera):
             raise NotConnectedError(f"{type(self).__name__}: grab() before connect()")
         shape = self._shape_source()
         t_s = float(self._clock_s())
-        # The previous frame's shape lets the renderer blur the arm's motion over the exposure.
+        # The renderer blurs the arm's motion over the exposure from the shape it had as the exposure
+        # opened (``exposure_opens``), else from the previous frame's.
         previous = None if self._last_shape is None else (self._last_shape, self._last_time_s)
+        if self._opening is not None and self._opening[1] < t_s and (
+                previous is None or self._opening[1] > previous[1]):
+            previous = self._opening
         images = self._renderer.render(shape, depth=True, t_s=t_s, previous=previous, frame_index=self._index)
         frame = StereoFrame(images.left, images.right, t_s, self._index)
         self._index += 1
@@ -130,6 +136,11 @@ class SimStereoCamera(StereoCamera):
         self._exposed_shape = self._renderer.exposed_shape(shape, t_s, previous)
         self._last_time_s = t_s
         return frame
+
+    def exposure_opens(self, shape: ArmShape, t_s: float) -> None:
+        """The arm's shape at ``t_s``, as the next frame's exposure opens (the physics hands it over on
+        its way to the frame's time): that frame's motion blur runs from it to the shape at the grab."""
+        self._opening = (shape, float(t_s))
 
     def depth_left(self) -> np.ndarray:
         """Depth of the last grabbed frame: (H, W) float32 metres along the left optical axis at

@@ -17,6 +17,7 @@ camera's (OpenCV axes: x right, y down, z forward), the frame the estimator repo
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from importlib.resources import files
 from pathlib import Path
@@ -189,14 +190,40 @@ class Twin:
     def advance(self, duration_s: float) -> None:
         """Run the physics for ``duration_s`` simulated seconds.
 
+        With an exposure time, the arm's shape as the exposure of a frame grabbed at the end would
+        open is handed to the camera on the way, so the frame's motion blur follows the physics
+        over its exposure (not a straight line from the previous frame, which can be a second and a
+        whole swing back).
+
         Raises:
+            ValueError: a negative or non-finite duration.
             SimulationError: the simulation went unstable (names the step).
         """
-        self.sim.advance(duration_s)
+        if not (math.isfinite(duration_s) and duration_s >= 0):
+            raise ValueError(f"duration_s: expected a finite number >= 0, got {duration_s!r}")
+        step = self.sim.timestep_s
+        steps = round(duration_s / step)
+        last = round(self._exposure_s() / step)
+        if last > 0 and steps > last:  # the same steps in two parts: the simulation does not change
+            self.sim.advance((steps - last) * step)
+            self.camera.exposure_opens(self.shape(), self.sim.time_s)
+            self.sim.advance(last * step)
+        else:
+            self.sim.advance(duration_s)
 
     def settle(self, **kwargs) -> bool:
         """Run until the arm is static (see ``ArmSimulation.settle``); True if it came to rest."""
-        return self.sim.settle(**kwargs)
+        rested = self.sim.settle(**kwargs)
+        if rested and self._exposure_s() > 0:  # at rest, the arm as an exposure opens is the arm now
+            self.camera.exposure_opens(self.shape(), self.sim.time_s - self._exposure_s())
+        return rested
+
+    def _exposure_s(self) -> float:
+        """The camera's exposure time where it blurs the arm's motion (0: frames are instants)."""
+        if not self.camera.is_connected:
+            return 0.0
+        effects = self.camera.effects
+        return effects.exposure_s if effects.motion_subframes >= 2 else 0.0
 
     def reset(self) -> None:
         """Back to rest at t = 0 with every valve vented."""
