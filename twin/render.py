@@ -822,8 +822,8 @@ class StereoRenderer:
         """(arm shape, time) of each sub-frame of the exposure, the last at ``t_s`` (one at the
         exposure's middle when nothing moves enough to blur).
 
-        The arm's shape between the previous frame and this one is interpolated linearly (the
-        physics only hands over one shape per capture); moving objects follow their paths exactly.
+        The arm's shape between ``previous`` (the shape as the exposure opened, or the previous frame's)
+        and this one is interpolated linearly; moving objects follow their paths exactly.
         """
         e = self.effects
         if e.exposure_s <= 0 or e.motion_subframes < 2:
@@ -1075,7 +1075,7 @@ def _gl_depth_to_metres(d: np.ndarray) -> np.ndarray:
 def _shape_at(shape: ArmShape | None, t_s: float, previous: tuple[ArmShape, float] | None,
               tau: float) -> ArmShape | None:
     """The arm at time ``tau`` within the exposure ending at ``t_s``: interpolated linearly back
-    towards the previous frame's (shape, time) (the physics hands over one shape per capture)."""
+    towards ``previous`` (shape, time): the arm as the exposure opened, or at the previous frame."""
     if shape is not None and previous is not None and previous[1] < t_s:
         weight = float(np.clip((t_s - tau) / (t_s - previous[1]), 0.0, 1.0))
         return interpolate_shape(shape, previous[0], weight)

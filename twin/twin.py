@@ -218,6 +218,15 @@ class Twin:
             self.camera.exposure_opens(self.shape(), self.sim.time_s - self._exposure_s())
         return rested
 
+    def _points_wanted(self, frame: str, n_points: int | None) -> int:
+        """How many backbone points a request asks for, after checking its frame and count."""
+        if frame not in FRAMES:
+            raise ValueError(f"frame: expected one of {', '.join(map(repr, FRAMES))}, got {frame!r}")
+        n = self.config.backbone_points if n_points is None else int(n_points)
+        if n < 2:
+            raise ValueError(f"n_points: expected at least 2, got {n}")
+        return n
+
     def _exposure_s(self) -> float:
         """The camera's exposure time where it blurs the arm's motion (0: frames are instants)."""
         if not self.camera.is_connected:
@@ -246,11 +255,7 @@ class Twin:
         Returns:
             (N, 3) metres.
         """
-        if frame not in FRAMES:
-            raise ValueError(f"frame: expected one of {', '.join(map(repr, FRAMES))}, got {frame!r}")
-        n = self.config.backbone_points if n_points is None else int(n_points)
-        if n < 2:
-            raise ValueError(f"n_points: expected at least 2, got {n}")
+        n = self._points_wanted(frame, n_points)
         points_world = self.sim.backbone(n)
         return points_world if frame == "world" else self.rig.world_to_left_camera(points_world)
 
@@ -262,11 +267,7 @@ class Twin:
         Raises:
             DeviceError: no frame has been grabbed since the camera connected.
         """
-        if frame not in FRAMES:
-            raise ValueError(f"frame: expected one of {', '.join(map(repr, FRAMES))}, got {frame!r}")
-        n = self.config.backbone_points if n_points is None else int(n_points)
-        if n < 2:
-            raise ValueError(f"n_points: expected at least 2, got {n}")
+        n = self._points_wanted(frame, n_points)
         shape = self.camera.exposed_shape
         if shape is None:
             raise DeviceError("frame_backbone(): no frame grabbed since the camera connected")
