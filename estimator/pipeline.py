@@ -86,6 +86,16 @@ MAX_POINT_STD_M = 0.04
 # condition) are unchanged. A bound at 7.8 mm caught four more but refused the ramp's middle frame
 # in the CI's sparse lab and dim sets (8-9 mm there, tracked 5 s apart).
 MAX_TIP_ALONG_STD_M = 0.010
+# The tip's standard deviation assumes its outline fits as well as the edges do. An outline the
+# fitted end misses by more than TIP_OUTLINE_NOISE_PX RMS (nine in ten tips within 10 mm fit
+# better) has pulled the tip somewhere it does not quite fit, so its standard deviation grows in
+# proportion; beyond MAX_MISFIT_TIP_STD_M so grown, the frame is refused. The twin's stored sets
+# (the ramp's 60- and 12-frame sets, the random preset's seeds 0-9, blur and bright_warm with seed
+# 5, the random pressure sequences; 1,632 frames): false valid 33 -> 15, valid 1,393 -> 1,375. A
+# bound at 6 mm refused a straight blurred arm of tests/scenes.py (6.1 mm at 0.50 px, 2 mm off);
+# 0.35 px refused fewer (1,380 valid) but kept 20 false valid.
+TIP_OUTLINE_NOISE_PX = 0.3
+MAX_MISFIT_TIP_STD_M = 0.008
 # Starting the fit from the previous frame's tube saves the disparity profile but measured worse
 # (2.8 against 2.2 mm on a late-ramp stretch of the twin): the profile starts it better.
 WARM_START_TUBE = False
@@ -858,6 +868,10 @@ class CenterlineEstimator:
             if run > limit * 2.0 * radius:
                 raise _NoArmError(f"the {name} is hidden: its last {run * 1e3:.0f} mm have no edges in both images")
         std = fit.point_std_m(at)
+        std[-1], misfit, image = _tip_std_with_misfit(float(std[-1]), fit.tip_residual_px)
+        if misfit > TIP_OUTLINE_NOISE_PX and std[-1] > MAX_MISFIT_TIP_STD_M:
+            raise _NoArmError(f"the fitted tip misses its outline in the {SIDES[image]} image by {misfit:.2f} px RMS: "
+                              f"its place is uncertain ({std[-1] * 1e3:.0f} mm standard deviation, counting the misfit)")
         if np.max(std) > MAX_POINT_STD_M:
             worst = int(np.argmax(std))
             raise _NoArmError(f"the images barely constrain the arm near point {worst} of {len(at)}: "
@@ -1199,6 +1213,18 @@ def _check_one_line_off(fit: TubeFit, edges: EdgeSet, misfit: np.ndarray, baseli
             raise _NoArmError(f"the tube follows neither side of the {side} image's silhouette over "
                               f"{over * 1e3:.0f} mm of the arm ({over / (2.0 * radius_m):.1f} arm widths): that "
                               "image and the other disagree about the arm there")
+
+
+def _tip_std_with_misfit(std_m: float, tip_residual_px: dict) -> tuple[float, float, int]:
+    """The tip's standard deviation grown by how far its worse image's outline misfits the fitted
+    end beyond ``TIP_OUTLINE_NOISE_PX`` RMS: ``(std, that RMS misfit in pixels, that image)``."""
+    misfit, image = 0.0, 0
+    for k, residuals in tip_residual_px.items():
+        if len(residuals):
+            rms = float(np.sqrt(np.mean(np.square(residuals))))
+            if rms > misfit:
+                misfit, image = rms, k
+    return std_m * max(1.0, misfit / TIP_OUTLINE_NOISE_PX), misfit, image
 
 
 def _explained(residuals_px: np.ndarray | None, sigma_px: float) -> bool:
