@@ -50,8 +50,9 @@ KNOWN_MISSES = {  # measured 2026-12-02 (fifth session) once unclean chords are 
     "blur": "9/12 valid (75 %), no false valid; RMSE 2.64 mm = 1.80x clean. Measured 2026-12-03 (eighth "
             "session) once a tip that misses its outline is refused: the frame at t = 26 s (tip 36 mm off, 2.3 px "
             "from its outline) and the last, t = 58 s (0.55 px; 9.1 mm off), now are; t = 37 s stays refused "
-            "(its base hidden). Before: 11/12 valid, 1 false valid, 2.56x (the twin blurring the arm's motion from its shape as the exposure "
-            "opens; on the straight line from the previous frame 5 s back: 11/12, none false valid, 1.78x)",
+            "(its base hidden). Before: 11/12 valid, 1 false valid, 2.56x (the twin blurring the arm's motion "
+            "from its shape as the exposure opens; on the straight line from the previous frame 5 s back: "
+            "11/12, none false valid, 1.78x)",
     "occluded": "1 false valid: the last frame (t = 58 s), its tip 12.3 mm off in depth where the arm runs along "
                 "the rows (before: the same frame, 11.6 mm)",
 }
