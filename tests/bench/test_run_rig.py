@@ -92,10 +92,10 @@ def test_a_failing_estimate_is_recorded_and_the_run_goes_on(rig_folder, board, m
     assert run.summary["invalid_reasons"]["estimator error: RuntimeError: boom"] == 1
 
 
-# The recording's pair (320x240, a 9 px wide tube drawn with round caps, no mount) was invalid warm ("the base
-# is hidden") until the chords a ragged mask calls unclean were measured from the image (2026-12-02). Its ends
-# come out 19-21 mm off warm and cold alike: the drawing's round caps are not the configured arm's ends, and
-# this test is about the warm start, not accuracy.
+# The recording's pair (320x240, a 9 px wide tube, no mount) was invalid warm ("the base is hidden") until the
+# chords a ragged mask calls unclean were measured from the image (2026-12-02). Drawn with round caps its ends
+# came out 19-21 mm off, and are refused since a tip that misses its outline is (2026-12-03); rendered with the
+# flat ends the estimator models, they are within 3 mm, warm and cold alike.
 def test_a_repeated_pair_is_estimated_warm_as_it_was_cold():
     calibration = small_calibration(WIDTH, HEIGHT)
     left, right, _ = draw_pair(calibration, arm_polyline_m())
