@@ -148,7 +148,8 @@ class EstimateResult:
             False where the tube fit bridged it (occluded, hidden by a distractor of the arm's
             colour, or cut off); empty when not valid or without the tube fit.
         point_std_m: (n,) each point's standard deviation along its least certain direction, from
-            the tube fit's covariance (metres); empty without the tube fit.
+            the tube fit's covariance (metres), the tip's grown where its outline misfits the fitted
+            end (``TIP_OUTLINE_NOISE_PX``); empty without the tube fit.
         radius_m: the tube's mean radius used by the fit, and ``radius_source`` where it came from
             ("configured", or "measured over N frames").
     """
