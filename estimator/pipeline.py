@@ -90,11 +90,11 @@ MAX_TIP_ALONG_STD_M = 0.010
 # fitted end misses by more than TIP_OUTLINE_NOISE_PX RMS (tips within 10 mm: median 0.12 px, nine
 # in ten under 0.4 px; false valid ones: median 0.45 px) has pulled the tip where it does not quite
 # fit, so its standard deviation grows in proportion; beyond MAX_MISFIT_TIP_STD_M so grown, the
-# frame is refused. The twin's stored sets
-# (the ramp's 60- and 12-frame sets, the random preset's seeds 0-9, blur and bright_warm with seed
-# 5, the random pressure sequences; 1,632 frames): false valid 33 -> 15, valid 1,393 -> 1,375. A
-# bound at 6 mm refused a straight blurred arm of tests/scenes.py (6.1 mm at 0.50 px, 2 mm off);
-# 0.35 px refused fewer (1,380 valid) but kept 20 false valid.
+# frame is refused. The twin's stored sets (the ramp's 60- and 12-frame sets, the random preset's
+# seeds 0-9, blur and bright_warm with seed 5, the random pressure sequences; 1,632 frames): false
+# valid 33 -> 15, valid 1,393 -> 1,375. A bound at 6 mm refused a straight blurred arm of
+# tests/scenes.py (6.1 mm at 0.50 px, 2 mm off); 0.35 px refused fewer (1,380 valid) but kept 20
+# false valid.
 TIP_OUTLINE_NOISE_PX = 0.3
 MAX_MISFIT_TIP_STD_M = 0.008
 # Starting the fit from the previous frame's tube saves the disparity profile but measured worse
