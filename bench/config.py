@@ -451,11 +451,14 @@ class BenchConfig:
 
 
 def _twin_tube(twin_toml: Path) -> dict[str, float]:
-    """``arm_length_m`` and ``arm_radius_m`` of the arm the twin file names (``twin.params.tube_of``)."""
+    """``arm_length_m`` and ``arm_radius_m`` of the arm the twin file names (``twin.params.tube_of``), and
+    ``connector_radius_m`` (its baseplates') where it has more than one section."""
     from twin.params import ArmParams, tube_of, twin_arm_file
 
-    length, radius = tube_of(ArmParams.load(twin_arm_file(twin_toml)))
-    return {"arm_length_m": length, "arm_radius_m": radius}
+    arm = ArmParams.load(twin_arm_file(twin_toml))
+    length, radius = tube_of(arm)
+    joined = {"connector_radius_m": arm.baseplate.radius_m} if len(arm.sections) > 1 else {}
+    return {"arm_length_m": length, "arm_radius_m": radius, **joined}
 
 
 # --- loading ------------------------------------------------------------------------------

@@ -103,6 +103,12 @@ class EstimatorConfig:
             geometry using ``arm_radius_m``.
         arm_radius_m: tube radius; the default mode measures the radius from width and disparity
             and uses this where it cannot (end-cap correction) and as a floor for the overlap check.
+        connector_radius_m: radius of the discs that join the arm's sections (baseplates), or None.
+            Where given, the default mode finds them in both images as short stretches of another
+            colour along the arm and lets each fix the depth of its place on the axis: where a
+            section runs along the image rows its silhouette lines carry no disparity, the
+            connector's band across it does. Their band is centred off the axis towards the camera,
+            by an amount that depends on this radius. None: connectors are not used.
         arm_length_m: nominal arm length; an estimate shorter than ``min_length_fraction`` of it
             means part of the arm is hidden (folded behind itself, out of view): invalid.
             None disables the check.
@@ -173,6 +179,7 @@ class EstimatorConfig:
     extend_ends: bool | None = None
     arm_radius_m: float = 0.025
     arm_length_m: float | None = 0.685
+    connector_radius_m: float | None = None
     compensation: str | None = None
     smoothing_degree: int | None = None
     roi: bool | None = None
@@ -235,6 +242,8 @@ class EstimatorConfig:
                "a fraction in [0, 5)", self.max_self_approach)
         _check(self.arm_length_m is None or (_number(self.arm_length_m) and self.arm_length_m > 0), "arm_length_m",
                "a positive length or None", self.arm_length_m)
+        _check(self.connector_radius_m is None or (_number(self.connector_radius_m) and self.connector_radius_m > 0),
+               "connector_radius_m", "a positive number of metres or None", self.connector_radius_m)
         _check(_number(self.min_length_fraction) and 0 <= self.min_length_fraction < 1, "min_length_fraction",
                "a fraction in [0, 1)", self.min_length_fraction)
         _check(_number(self.max_length_fraction) and self.max_length_fraction > 1, "max_length_fraction",

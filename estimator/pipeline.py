@@ -121,6 +121,13 @@ RESCUE_WINDOW_PX = 40.0  # unclean chords are compared with the clean ones withi
 RESCUE_TOLERANCE_PX = 0.8  # ... and kept within this of their width (half of it in centre) ...
 RESCUE_SPREADS = 3.0  # ... or this many robust spreads of the clean chords' widths, if larger
 RESCUE_GAP_WIDTHS = 1.0  # not beside a stretch without clean chords longer than this many arm widths
+# The connectors between sections (see _connector_centres and tube_fit's connectors), where the
+# config gives their radius: a stretch of the centerline without clean chords is one when it is at
+# most this many arm widths long (plus the half width kept clear on each side) ...
+MAX_CONNECTOR_WIDTHS = 1.0
+CONNECTOR_MIN_CONTRAST = 40.0  # ... and its colour differs from the arm's by this much (BGR distance) at its darkest
+CONNECTOR_WEIGHT_FLOOR = 0.1  # below this share of the dip, a sample is the arm's shading, not the connector
+MAX_CONNECTOR_ROW_PX = 4.0  # see _paired_connectors
 EDGE_STRIDE = 1  # every sample of the 2D centerline (3 px apart); every second gave 1.84 mm, not 1.42, on the late ramp
 SIDES = ("left", "right")
 
@@ -632,7 +639,8 @@ class CenterlineEstimator:
             curve = None if r.curve is None else Centerline2D(r.curve.points[::-1], r.curve.valid[::-1],
                                                               r.curve.half_width_px[::-1],
                                                               r.curve.arc_px[-1] - r.curve.arc_px[::-1])
-            edges = None if r.edges is None else (*r.edges[:3], r.edges[3][::-1].copy(), r.edges[4][::-1])
+            edges = None if r.edges is None else (*r.edges[:3], r.edges[3][::-1].copy(), r.edges[4][::-1],
+                                                  r.edges[5][::-1].copy())
             sides["right"] = _Side(r.nodes[::-1].copy(), curve, r.width_px, r.area_px, r.learn, r.image, r.offset,
                                    edges)
 
@@ -760,10 +768,12 @@ class CenterlineEstimator:
         side_ids, xy, chord, steps = [], [], [], []
         ends = {"base": np.full((2, 2), np.nan), "tip": np.full((2, 2), np.nan)}
         tip_outline: dict[int, np.ndarray] = {}
+        connector_views: list[np.ndarray] = []
         for k, side in enumerate(SIDES):
             if sides[side].edges is None:
                 raise _NoArmError(f"no silhouette edges measured in the {side} image")
-            points, centres, widths, (base, tip), outlines = sides[side].edges
+            points, centres, widths, (base, tip), outlines, seen_connectors = sides[side].edges
+            connector_views.append((seen_connectors - centre) / f)
             xy.append((points - centre) / f)
             steps.append(widths)
             chord.append((centres - centre) / f)
@@ -780,9 +790,12 @@ class CenterlineEstimator:
         # tube changes a little with its pose and its shading, and a radius held tighter than a
         # millimetre pulled depth off with it (late ramp, lab: 1.7 -> 2.2 mm RMSE at 0.03 mm).
         sigma = np.maximum(1.0 / np.sqrt(self._radius_info), RADIUS_FIT_SIGMA_M)
+        connectors = _paired_connectors(*connector_views) if cfg.connector_radius_m is not None else None
+
         def fit_from(start, edges_):
             return fit_tube(edges_, ends, dense, self._radius, sigma, focal_px=f, baseline_m=self._rect.baseline_m,
-                            base_prior=self._base.prior, initial_control=start, tip_outline=tip_outline)
+                            base_prior=self._base.prior, initial_control=start, tip_outline=tip_outline,
+                            connectors=connectors, connector_radius_m=cfg.connector_radius_m or 0.0)
 
         second = None
         if warm_control is None and self._warm_fit is not None and self._moving_fast:
@@ -793,7 +806,9 @@ class CenterlineEstimator:
                                 focal_px=f, baseline_m=self._rect.baseline_m,
                                 base_prior=copy.deepcopy(self._base.prior),
                                 initial_control=self._warm_fit.control.copy(),
-                                tip_outline={k: v.copy() for k, v in tip_outline.items()})
+                                tip_outline={k: v.copy() for k, v in tip_outline.items()},
+                                connectors=None if connectors is None else connectors.copy(),
+                                connector_radius_m=cfg.connector_radius_m or 0.0)
         fit = fit_from(warm_control, edges)
         moved = self._moved_from_last(fit)
         near = SECOND_START_MAX_WIDTHS * 2.0 * float(np.mean(self._radius))
@@ -1014,8 +1029,9 @@ def _silhouette_edges(image: np.ndarray, mask: np.ndarray, curve: Centerline2D, 
     baseplates' and the caps' edges as often as the tube's (measured: 2.2 -> 9.9 mm RMSE).
 
     Returns:
-        (edge points (K, 2), the centres of their chords (K, 2), (2, 2) base and tip ends,
-        (outline at the base (M, 2), outline at the tip (M, 2))).
+        (edge points (K, 2), the centres of their chords (K, 2), their steps' widths (K,), (2, 2) base
+        and tip ends, (outline at the base (M, 2), outline at the tip (M, 2)), the connectors' centres
+        (C, 2) base first (``_connector_centres``)).
     """
     tangent = np.gradient(curve.points, axis=0)
     tangent /= np.linalg.norm(tangent, axis=1, keepdims=True) + 1e-12
@@ -1035,7 +1051,69 @@ def _silhouette_edges(image: np.ndarray, mask: np.ndarray, curve: Centerline2D, 
     ends = np.array([_subpixel_end(image, offset, curve, end) for end in (0, -1)])
     mask01 = (mask > 0).astype(np.float32)
     outlines = tuple(_end_outline(image, mask01, offset, curve, end) for end in (0, -1))
-    return np.concatenate(points), np.concatenate(centres), np.concatenate(widths), ends, outlines
+    connectors = _connector_centres(image, curve, offset)
+    return np.concatenate(points), np.concatenate(centres), np.concatenate(widths), ends, outlines, connectors
+
+
+def _connector_centres(image: np.ndarray, curve: Centerline2D, offset: np.ndarray) -> np.ndarray:
+    """Where the centerline crosses each short stretch of another colour between two of the arm's:
+    the connectors between sections (rectified pixels, base first; (0, 2) if none).
+
+    Each is the centroid of the dip of the arm's colour along the centerline across the stretch (the
+    colour projected onto the arm's minus the darkest's, weights clipped to [0, 1]): a symmetric blur
+    spreads the dip without moving its centroid. A stretch longer than ``MAX_CONNECTOR_WIDTHS`` arm
+    widths, or without a clear dip, is something else (an occluder, an overlap) and is left out.
+    """
+    valid = curve.valid
+    support = np.flatnonzero(valid)
+    if len(support) < 6:
+        return np.zeros((0, 2))
+    width = 2.0 * float(np.median(curve.half_width_px[support]))
+    arc = curve.arc_px
+    flags = valid[support[0]:support[-1] + 1].astype(np.int8)
+    starts = np.flatnonzero(np.diff(flags) == -1) + support[0]  # last supported point before each run
+    stops = np.flatnonzero(np.diff(flags) == 1) + support[0] + 1  # first supported point after it
+    found = []
+    h, w = image.shape[:2]
+    for i, j in zip(starts, stops, strict=True):
+        if arc[j] - arc[i] > MAX_CONNECTOR_WIDTHS * width + width:  # the run plus the half widths kept clear on each side
+            continue
+        # the centerline from i to j, sampled every half pixel
+        t = np.arange(arc[i], arc[j] + 1e-9, 0.5)
+        path = np.column_stack([np.interp(t, arc, curve.points[:, k]) for k in range(2)]) - offset
+        inside = (path[:, 0] >= 0) & (path[:, 1] >= 0) & (path[:, 0] <= w - 1) & (path[:, 1] <= h - 1)
+        if not inside.all():
+            continue
+        colour = cv2.remap(image, path[:, 0].astype(np.float32).reshape(1, -1),
+                           path[:, 1].astype(np.float32).reshape(1, -1), cv2.INTER_LINEAR).reshape(-1, 3)
+        colour = colour.astype(np.float64)
+        ends = max(int(0.25 * width / 0.5), 2)
+        arm = 0.5 * (colour[:ends].mean(axis=0) + colour[-ends:].mean(axis=0))
+        dark = colour[np.argmax(np.linalg.norm(colour - arm, axis=1))]
+        span = dark - arm
+        contrast = float(np.linalg.norm(span))
+        if contrast < CONNECTOR_MIN_CONTRAST:
+            continue
+        weight = np.clip((colour - arm) @ span / contrast**2, 0.0, 1.0)
+        weight = np.maximum(weight - CONNECTOR_WEIGHT_FLOOR, 0.0)
+        if weight.sum() <= 0.0:
+            continue
+        at = float(np.sum(weight * t) / weight.sum())
+        found.append([np.interp(at, arc, curve.points[:, 0]), np.interp(at, arc, curve.points[:, 1])])
+    return np.array(found, np.float64).reshape(-1, 2)
+
+
+def _paired_connectors(left: np.ndarray, right: np.ndarray) -> np.ndarray | None:
+    """(K, 2, 2) the connectors seen in both images (rectified pixels), paired in order along the
+    arm, or None where the images do not show as many of them, within ``MAX_CONNECTOR_ROW_PX`` of the
+    same rows: one is hidden in one image, or an occluder's crossing was taken for one. (Tilted, a
+    connector's band is centred a little differently in each image: up to 1.4 px apart in rows on the
+    twin's ramp; paired wrongly, they lie sections apart.)"""
+    if len(left) == 0 or len(left) != len(right):
+        return None
+    if np.max(np.abs(left[:, 1] - right[:, 1])) > MAX_CONNECTOR_ROW_PX:
+        return None
+    return np.stack([left, right], axis=1)
 
 
 def _rescued_chords(image: np.ndarray, curve: Centerline2D, offset: np.ndarray, normals: np.ndarray,

@@ -60,6 +60,7 @@ REDESCEND_AFTER = 2  # iterations under Huber (robust while far off) before gros
 CONVERGED = 5e-3  # stop once an iteration lowers the cost by less than this fraction
 REASSIGN_AT = (2, 4)  # iterations after which every edge is re-attached to the nearest point of the axis
 CURVE_SAMPLES = 160
+CONNECTOR_SIGMA_PX = 0.2  # a connector's centre along the tube, from the dip of the arm's colour across it
 MISFIT_WINDOW = 8  # consecutive edges of one silhouette line (about a tube width of arc)
 MISFIT_SIGMAS = 4.0  # their mean residual beyond this many sigmas: that stretch of line is not the tube's
 
@@ -302,6 +303,63 @@ def _end_residual(C, D, r, x, y, cap):
     return (px + over * tx - x) * tx + (py + over * ty - y) * ty
 
 
+@numba.njit(cache=True, nogil=True)
+def _connector_residual(C, D, r, x, y, connector_radius):
+    """Along-curve distance (normalised units) from where a connector's dark band is centred along
+    the tube's image to the observed centre (x, y).
+
+    In the plane of the axis and the line of sight, the band runs from where the near tube (the one
+    in front of the disc) leaves the disc's face, r from the axis on the camera's side, to the
+    disc's rim on the far face, R from it: its centre is the image of the axis point moved by
+    (r + R) / 2 towards the camera, across the axis. Seen square on (the line of sight across the
+    axis) that moves nothing along the tube; tilted, up to a disc radius: on the twin's ramp the band
+    lay 2-16 px along the tube from the image of the disc's centre, and 1.5 px of disparity off at
+    most; moved so, within 0.2 px in either image (``tests/estimator/test_connectors.py``)."""
+    if C[2] <= 1e-6:
+        return np.nan
+    cn = math.sqrt(C[0] * C[0] + C[1] * C[1] + C[2] * C[2])
+    dn = math.sqrt(D[0] * D[0] + D[1] * D[1] + D[2] * D[2])
+    if dn < 1e-12:
+        return np.nan
+    vt = (C[0] * D[0] + C[1] * D[1] + C[2] * D[2]) / (cn * dn)
+    nx = C[0] / cn - vt * D[0] / dn
+    ny = C[1] / cn - vt * D[1] / dn
+    nz = C[2] / cn - vt * D[2] / dn
+    nl = math.sqrt(nx * nx + ny * ny + nz * nz)
+    shift = 0.5 * (r + connector_radius) / nl if nl > 1e-9 else 0.0
+    P0 = C[0] - shift * nx
+    P1 = C[1] - shift * ny
+    P2 = C[2] - shift * nz
+    if P2 <= 1e-6:
+        return np.nan
+    px, py = P0 / P2, P1 / P2
+    tx = (D[0] * P2 - P0 * D[2]) / (P2 * P2)
+    ty = (D[1] * P2 - P1 * D[2]) / (P2 * P2)
+    tl = math.sqrt(tx * tx + ty * ty)
+    if tl < 1e-12:
+        return np.nan
+    tx, ty = tx / tl, ty / tl
+    return (px - x) * tx + (py - y) * ty
+
+
+@numba.njit(cache=True, nogil=True)
+def _connector_pair_residual(C, D, r, xl, yl, xr, yr, connector_radius, baseline):
+    """The difference between a connector's along-curve residuals in the left and the right image
+    (``_connector_residual``; C, D in the left camera's frame), over the square root of two.
+
+    Moving the shared place along the axis moves both images' residuals alike: their difference is
+    what the connector says of depth alone, and it leaves the axis's parametrisation to the edges
+    (the residuals themselves, at a place held between re-attachments, slid the spline along itself
+    and bent the first section by 3 mm on the twin's blurred ramp)."""
+    left = _connector_residual(C, D, r, xl, yl, connector_radius)
+    Cr = np.empty(3)
+    Cr[0] = C[0] - baseline
+    Cr[1] = C[1]
+    Cr[2] = C[2]
+    right = _connector_residual(Cr, D, r, xr, yr, connector_radius)
+    return (left - right) * 0.7071067811865476
+
+
 _RIM_COS = np.cos(2.0 * np.pi * (np.arange(CAP_SAMPLES + 1) % CAP_SAMPLES) / CAP_SAMPLES)
 _RIM_SIN = np.sin(2.0 * np.pi * (np.arange(CAP_SAMPLES + 1) % CAP_SAMPLES) / CAP_SAMPLES)
 SIDE_PIECE = -1  # a cap piece: the silhouette line on side +1 (-2: on side -1); 0.. the rim's segments
@@ -454,7 +512,11 @@ def _normal_equations(bases, control, radii, bins, baseline, focal, kinds, sides
         r = radii[rj]
         piece = 0
         gr = 0.0
-        if kinds[i] == 2:
+        if kinds[i] == 4:
+            continue  # a connector's right view: taken with its left one (kind 3)
+        if kinds[i] == 3:
+            res = _connector_pair_residual(C, D, r, xs[i], ys[i], xs[i + 1], ys[i + 1], extras[i], baseline)
+        elif kinds[i] == 2:
             res, piece = _cap_residual_piece(C, D, r, xs[i], ys[i])
         elif kinds[i] == 0 and want_system:  # an edge's residual comes with its partials
             res, gr = _edge_residual_gradient(C, D, r, xs[i], ys[i], extras[i], gC, gD)
@@ -495,12 +557,20 @@ def _normal_equations(bases, control, radii, bins, baseline, focal, kinds, sides
                 if kinds[i] == 2:
                     gC[c] = (_cap_piece(Cp, D, r, xs[i], ys[i], piece) - res) / h * focal
                     gD[c] = (_cap_piece(C, Dp, r, xs[i], ys[i], piece) - res) / hd * focal
+                elif kinds[i] == 3:
+                    gC[c] = (_connector_pair_residual(Cp, D, r, xs[i], ys[i], xs[i + 1], ys[i + 1], extras[i],
+                                                      baseline) - res) / h * focal
+                    gD[c] = (_connector_pair_residual(C, Dp, r, xs[i], ys[i], xs[i + 1], ys[i + 1], extras[i],
+                                                      baseline) - res) / hd * focal
                 else:
                     gC[c] = (_end_residual(Cp, D, r, xs[i], ys[i], extras[i]) - res) / h * focal
                     gD[c] = (_end_residual(C, Dp, r, xs[i], ys[i], extras[i]) - res) / hd * focal
             hr = 1e-7
             if kinds[i] == 2:
                 gr = (_cap_piece(C, D, r + hr, xs[i], ys[i], piece) - res) / hr * focal
+            elif kinds[i] == 3:
+                gr = (_connector_pair_residual(C, D, r + hr, xs[i], ys[i], xs[i + 1], ys[i + 1], extras[i],
+                                               baseline) - res) / hr * focal
             else:
                 gr = (_end_residual(C, D, r + hr, xs[i], ys[i], extras[i]) - res) / hr * focal
         n = 0
@@ -691,6 +761,44 @@ def _damped_step(A, g, cost, damping, bases, control, radii, bins, baseline, foc
 _ARC_GRID = np.linspace(0.0, 1.0, CURVE_SAMPLES)
 
 
+def _attach_pairs(knots, control, baseline, connectors, radius, connector_radius):
+    """u of the axis point whose connector model (``_connector_residual``: the band's centre, shifted
+    from the axis towards each camera) lies nearest both images' views of each connector (the sum of
+    the squared image distances): one place seen twice."""
+    us = _ARC_GRID
+    points, derivs = evaluate_many(knots, control, us)
+    out = np.empty(len(connectors))
+    for k, views in enumerate(connectors):
+        dist = np.zeros(len(us))
+        for side in range(2):
+            C = points - np.array([baseline if side == 1 else 0.0, 0.0, 0.0])
+            image = _connector_images(C, derivs, radius, connector_radius)
+            dist += (image[:, 0] - views[side, 0]) ** 2 + (image[:, 1] - views[side, 1]) ** 2
+        dist = np.where(np.isfinite(dist), dist, np.inf)
+        best = int(np.argmin(dist))
+        u = us[best]
+        if 0 < best < len(us) - 1 and np.all(np.isfinite(dist[best - 1:best + 2])):
+            a, b, c = dist[best - 1], dist[best], dist[best + 1]
+            den = a - 2.0 * b + c
+            if den > 0.0:
+                u += 0.5 * (a - c) / den * (us[1] - us[0])
+        out[k] = min(max(u, 0.0), 1.0)
+    return out
+
+
+def _connector_images(C, D, radius, connector_radius):
+    """(n, 2) where ``_connector_residual`` puts the band's centre for axis points C with derivatives D
+    (one camera's frame, normalised image coordinates; NaN behind the camera)."""
+    cn = np.linalg.norm(C, axis=1, keepdims=True)
+    t = D / np.maximum(np.linalg.norm(D, axis=1, keepdims=True), 1e-12)
+    v = C / np.maximum(cn, 1e-12)
+    n = v - np.sum(v * t, axis=1, keepdims=True) * t
+    nl = np.linalg.norm(n, axis=1, keepdims=True)
+    P = C - 0.5 * (radius + connector_radius) * n / np.maximum(nl, 1e-9)
+    z = np.where(P[:, 2] > 1e-6, P[:, 2], np.nan)
+    return P[:, :2] / z[:, None]
+
+
 @numba.njit(cache=True, nogil=True)
 def arc_fraction(knots, control, us):
     """Arc length from the base as a fraction of the whole axis, at each u."""
@@ -737,7 +845,8 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
              control_points: int = CONTROL_POINTS, base_prior: tuple[np.ndarray, np.ndarray] | None = None,
              initial_control: np.ndarray | None = None,
              tip_outline: dict[int, np.ndarray] | None = None, initial_radii: np.ndarray | None = None,
-             iterations: int = ITERATIONS, _staged: bool = False) -> TubeFit | None:
+             connectors: np.ndarray | None = None, connector_radius_m: float = 0.0, iterations: int = ITERATIONS,
+             _staged: bool = False) -> TubeFit | None:
     """Fit the tube to the edges of both images.
 
     Args:
@@ -761,6 +870,11 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
             in a second stage, started from the fit with the end point (an outline is attributed to
             the nearest of the rim and the sides: from a tip far off, to the wrong one).
         initial_radii: radii to start from (default: the prior).
+        connectors: (K, 2, 2) the centres of the bands the connectors between sections make along
+            the tube's image, in the left (``[:, 0]``) and the right (``[:, 1]``) image (normalised),
+            base first: one place on the axis each, seen from both cameras, so they give its
+            disparity where the silhouette's lines cannot (a section along the image rows).
+        connector_radius_m: the connectors' radius (where their band is centred: ``_connector_residual``).
         iterations: Gauss-Newton iterations at most.
 
     Returns:
@@ -769,13 +883,16 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
     if not _staged and tip_outline and any(len(v) >= MIN_CAP_POINTS for v in tip_outline.values()):
         first = fit_tube(edges, ends, initial_points, radius_prior, radius_sigma, focal_px=focal_px,
                          baseline_m=baseline_m, cap=cap, control_points=control_points, base_prior=base_prior,
-                         initial_control=initial_control, initial_radii=initial_radii, iterations=iterations)
+                         initial_control=initial_control, initial_radii=initial_radii, connectors=connectors,
+                         connector_radius_m=connector_radius_m, iterations=iterations)
         if first is None:
             return None
         return fit_tube(edges, ends, initial_points, radius_prior, radius_sigma, focal_px=focal_px,
                         baseline_m=baseline_m, cap=cap, control_points=control_points, base_prior=base_prior,
                         initial_control=first.control, tip_outline={k: v for k, v in tip_outline.items()},
-                        initial_radii=first.radius_bins, iterations=OUTLINE_ITERATIONS, _staged=True)
+                        initial_radii=first.radius_bins, connectors=connectors,
+                        connector_radius_m=connector_radius_m, iterations=OUTLINE_ITERATIONS,
+                        _staged=True)
     if initial_control is not None:
         control = np.array(initial_control, np.float64)
         knots = clamped_knots(len(control))
@@ -819,6 +936,16 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
                 sigmas.append(np.array([END_SIGMA_PX]))
                 end_us.append(u_end)
                 end_extra.append(extra)
+    n_connectors = 0 if connectors is None else len(connectors)
+    for k in range(n_connectors):
+        # Both images' views of one place on the axis, at one shared u (attached below): a single
+        # residual (kind 3, ``_connector_pair_residual``) reads both (kind 4 carries the right view).
+        kinds.append(np.array([3, 4]))
+        sides.append(np.array([0, 0]))  # both in the left camera's frame: the pair's residual shifts the right
+        xs.append(np.asarray(connectors[k, :, 0], np.float64))
+        ys.append(np.asarray(connectors[k, :, 1], np.float64))
+        sigmas.append(np.full(2, CONNECTOR_SIGMA_PX))
+        end_extra += [connector_radius_m, connector_radius_m]
     kinds, sides = np.concatenate(kinds), np.concatenate(sides)
     xs, ys, sigmas = np.concatenate(xs), np.concatenate(ys), np.concatenate(sigmas)
     n_edges = len(edges.side)
@@ -832,8 +959,14 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
     def attach(control_):
         return _attach(knots, control_, baseline_m, chord_sides, chord_centres, CURVE_SAMPLES)[chord_of]
 
+    def attach_connectors(control_):
+        if not n_connectors:
+            return np.zeros(0)
+        return np.repeat(_attach_pairs(knots, control_, baseline_m, connectors, float(np.mean(radii)),
+                                       connector_radius_m), 2)
+
     us = np.concatenate([attach(control),
-                         np.array(end_us)])
+                         np.array(end_us), attach_connectors(control)])
     # Which silhouette line each edge belongs to, from the initial tube (edges lie well to one side).
     extras = np.concatenate([_edge_sides(knots, control, baseline_m, sides[:n_edges], us[:n_edges], edges.xy,
                                          edges.centre), np.array(end_extra)])
@@ -871,6 +1004,8 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
         converged = status > 0 and cost - new_cost < CONVERGED * cost and iteration + 1 >= REASSIGN_AT[0]
         if iteration + 1 in REASSIGN_AT:
             us[:n_edges] = attach(control)
+            if n_connectors:
+                us[len(us) - 2 * n_connectors:] = attach_connectors(control)
             bins = radius_bins(knots, control, us, len(radii))
             bases = _bases(knots, count, us)
         if iteration + 1 == REDESCEND_AFTER or (_staged and iteration == 0):
@@ -897,7 +1032,7 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
         covariance = np.full_like(covariance, math.inf)
     radius_std = np.sqrt(np.maximum(np.diag(covariance)[3 * count:], 0.0))
     at_tip = np.zeros(len(kinds), bool)
-    at_tip[n_edges:] = np.array(end_us) == 1.0
+    at_tip[n_edges:n_edges + len(end_us)] = np.array(end_us) == 1.0
     tip_res = {int(side): residuals[at_tip & (sides == side)] for side in END_SIDES
                if np.any(at_tip & (sides == side))}
     return TubeFit(knots, control, radii, radius_std, covariance, rms, inliers, us[:n_edges].copy(), edge_res,

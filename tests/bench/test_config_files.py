@@ -60,7 +60,9 @@ def test_the_reader_names_the_file_and_the_key_and_suggests_the_closest_key(tmp_
 
 def test_the_rig_config_holds_only_what_differs_from_bench_toml():
     data = tomllib.loads((MODELS / "bench_rig.toml").read_text())
-    assert data == {"base": "bench.toml", "backend": "rig", "experiment": {"lead_in_s": 2.0}}
+    # (the connectors' radius: on the twin the estimator reads it from the arm file, on the rig from here)
+    assert data == {"base": "bench.toml", "backend": "rig", "experiment": {"lead_in_s": 2.0},
+                    "estimator": {"connector_radius_m": 0.032}}
     sim, rig = load_bench_config(), load_bench_config(MODELS / "bench_rig.toml")
     assert rig.rig == sim.rig and rig.recording == sim.recording and rig.report == sim.report
 
@@ -264,5 +266,8 @@ def test_on_the_twin_the_estimator_is_told_the_twins_arm(tmp_path):
     assert load_bench_config(bench).estimator_config().arm_radius_m == 0.02
     shipped = load_bench_config().estimator_config()
     assert (shipped.arm_length_m, round(shipped.arm_radius_m, 4)) == (0.685, 0.0243)
-    assert load_bench_config(MODELS / "bench_rig.toml").estimator_config().arm_radius_m == 0.025
+    assert shipped.connector_radius_m == 0.032  # its baseplates, stereo features between sections
+    rig = load_bench_config(MODELS / "bench_rig.toml").estimator_config()
+    assert rig.arm_radius_m == 0.025 and rig.connector_radius_m == 0.032  # the rig file's own [estimator]
+    assert load_bench_config(bench).estimator_config().connector_radius_m == 0.032
 
