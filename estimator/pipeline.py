@@ -1076,7 +1076,7 @@ def _connector_centres(image: np.ndarray, curve: Centerline2D, offset: np.ndarra
     found = []
     h, w = image.shape[:2]
     for i, j in zip(starts, stops, strict=True):
-        if arc[j] - arc[i] > MAX_CONNECTOR_WIDTHS * width + width:  # the run plus the half widths kept clear on each side
+        if arc[j] - arc[i] > MAX_CONNECTOR_WIDTHS * width + width:  # plus the half widths kept clear each side
             continue
         # the centerline from i to j, sampled every half pixel
         t = np.arange(arc[i], arc[j] + 1e-9, 0.5)

@@ -89,7 +89,9 @@ def test_rig_config_runs_the_same_experiment_on_the_rig():
     sim, rig = load_bench_config(), load_bench_config(REPO / "models" / "bench_rig.toml")
     assert rig.backend == "rig" and rig.rig is not None
     assert dataclasses.replace(rig.experiment, lead_in_s=0.0) == sim.experiment
-    assert rig.estimator == sim.estimator and rig.rig.valves == sim.rig.valves
+    # the same estimator, told on the rig what the twin's arm file tells it on the twin (the connectors' radius)
+    assert dict(rig.estimator) == {**sim.estimator, "connector_radius_m": sim.estimator_config().connector_radius_m}
+    assert rig.rig.valves == sim.rig.valves
 
 
 def test_estimator_mode_override_keeps_the_files_other_keys(tmp_path):

@@ -18,7 +18,7 @@ from estimator import EstimatorConfig
 from estimator.pipeline import MAX_CONNECTOR_ROW_PX, _connector_centres, _paired_connectors
 from estimator.refinement import Centerline2D
 from estimator.tube_fit import _connector_pair_residual, _connector_residual, _end_residual
-from tests.estimator.test_tube_fit import B, CENTRES, F, _middle_depth_error_mm, _rows_curve, fit, tube_edges
+from tests.estimator.test_tube_fit import CENTRES, B, F, _middle_depth_error_mm, _rows_curve, fit, tube_edges
 
 R_TUBE, R_DISC, THICKNESS = 0.026, 0.032, 0.008  # the twin's arm: sections' and baseplates' radii, plate thickness
 
@@ -130,7 +130,8 @@ def _tube_image(band_x: float, gap_px: float = 6.0, shake_px: float = 9.0) -> np
     s = 8
     big = np.full((240 * s, 640 * s, 3), (150, 160, 170), np.uint8)
     cv2.rectangle(big, (40 * s, 105 * s), (600 * s, 135 * s), (30, 110, 235), -1)
-    # fine pixels lo..hi (inclusive) cover [band_x - gap / 2, band_x + gap / 2] once averaged down (pixel centres on integers)
+    # fine pixels lo..hi (inclusive) cover [band_x - gap / 2, band_x + gap / 2] once averaged down
+    # (pixel centres on integers)
     lo, hi = int(round((band_x - gap_px / 2 + 0.5) * s)), int(round((band_x + gap_px / 2 + 0.5) * s)) - 1
     cv2.rectangle(big, (lo, 101 * s), (hi, 139 * s), (40, 40, 45), -1)
     image = cv2.resize(big, (640, 240), interpolation=cv2.INTER_AREA)
