@@ -644,15 +644,21 @@ def _attach(knots, control, baseline, sides, centres, samples):
             if dist[k] < best:
                 best = dist[k]
                 best_k = k
-        u = us[best_k]
-        # between the neighbouring samples: the vertex of the parabola through the squared distances
-        if 0 < best_k < samples - 1:
-            a, b, c = dist[best_k - 1], dist[best_k], dist[best_k + 1]
-            den = a - 2.0 * b + c
-            if den > 0.0:
-                u += 0.5 * (a - c) / den * (us[1] - us[0])
-        out[i] = min(max(u, 0.0), 1.0)
+        out[i] = _vertex_u(us, dist, best_k)
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _vertex_u(us, dist, best):
+    """``us[best]`` moved between the neighbouring samples to the vertex of the parabola through the
+    squared distances there (where they make one that opens upwards), clipped to [0, 1]."""
+    u = us[best]
+    if 0 < best < us.shape[0] - 1:
+        a, b, c = dist[best - 1], dist[best], dist[best + 1]
+        den = a - 2.0 * b + c
+        if den > 0.0 and math.isfinite(den):
+            u += 0.5 * (a - c) / den * (us[1] - us[0])
+    return min(max(u, 0.0), 1.0)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -775,14 +781,7 @@ def _attach_pairs(knots, control, baseline, connectors, radius, connector_radius
             image = _connector_images(C, derivs, radius, connector_radius)
             dist += (image[:, 0] - views[side, 0]) ** 2 + (image[:, 1] - views[side, 1]) ** 2
         dist = np.where(np.isfinite(dist), dist, np.inf)
-        best = int(np.argmin(dist))
-        u = us[best]
-        if 0 < best < len(us) - 1 and np.all(np.isfinite(dist[best - 1:best + 2])):
-            a, b, c = dist[best - 1], dist[best], dist[best + 1]
-            den = a - 2.0 * b + c
-            if den > 0.0:
-                u += 0.5 * (a - c) / den * (us[1] - us[0])
-        out[k] = min(max(u, 0.0), 1.0)
+        out[k] = _vertex_u(us, dist, int(np.argmin(dist)))
     return out
 
 
