@@ -773,7 +773,7 @@ class CenterlineEstimator:
             if sides[side].edges is None:
                 raise _NoArmError(f"no silhouette edges measured in the {side} image")
             points, centres, widths, (base, tip), outlines, seen_connectors = sides[side].edges
-            connector_views.append((seen_connectors - centre) / f)
+            connector_views.append(seen_connectors)
             xy.append((points - centre) / f)
             steps.append(widths)
             chord.append((centres - centre) / f)
@@ -791,6 +791,8 @@ class CenterlineEstimator:
         # millimetre pulled depth off with it (late ramp, lab: 1.7 -> 2.2 mm RMSE at 0.03 mm).
         sigma = np.maximum(1.0 / np.sqrt(self._radius_info), RADIUS_FIT_SIGMA_M)
         connectors = _paired_connectors(*connector_views) if cfg.connector_radius_m is not None else None
+        if connectors is not None:
+            connectors = (connectors - centre) / f  # paired in pixels, fitted in normalised coordinates
 
         def fit_from(start, edges_):
             return fit_tube(edges_, ends, dense, self._radius, sigma, focal_px=f, baseline_m=self._rect.baseline_m,
