@@ -304,6 +304,24 @@ def _end_residual(C, D, r, x, y, cap):
 
 
 @numba.njit(cache=True, nogil=True)
+def _band_centre(C, D, r, connector_radius):
+    """The 3D point whose image is the centre of a connector's band (``_connector_residual``): the axis
+    point C (tangent D, camera frame) moved (r + R) / 2 across the axis towards the camera; NaNs where
+    C is not in front of it or D vanishes."""
+    cn = math.sqrt(C[0] * C[0] + C[1] * C[1] + C[2] * C[2])
+    dn = math.sqrt(D[0] * D[0] + D[1] * D[1] + D[2] * D[2])
+    if C[2] <= 1e-6 or dn < 1e-12:
+        return np.nan, np.nan, np.nan
+    vt = (C[0] * D[0] + C[1] * D[1] + C[2] * D[2]) / (cn * dn)
+    nx = C[0] / cn - vt * D[0] / dn
+    ny = C[1] / cn - vt * D[1] / dn
+    nz = C[2] / cn - vt * D[2] / dn
+    nl = math.sqrt(nx * nx + ny * ny + nz * nz)
+    shift = 0.5 * (r + connector_radius) / nl if nl > 1e-9 else 0.0
+    return C[0] - shift * nx, C[1] - shift * ny, C[2] - shift * nz
+
+
+@numba.njit(cache=True, nogil=True)
 def _connector_residual(C, D, r, x, y, connector_radius):
     """Along-curve distance (normalised units) from where a connector's dark band is centred along
     the tube's image to the observed centre (x, y).
@@ -315,22 +333,8 @@ def _connector_residual(C, D, r, x, y, connector_radius):
     axis) that moves nothing along the tube; tilted, up to a disc radius: on the twin's ramp the band
     lay 2-16 px along the tube from the image of the disc's centre, and 1.5 px of disparity off at
     most; moved so, within 0.2 px in either image (``tests/estimator/test_connectors.py``)."""
-    if C[2] <= 1e-6:
-        return np.nan
-    cn = math.sqrt(C[0] * C[0] + C[1] * C[1] + C[2] * C[2])
-    dn = math.sqrt(D[0] * D[0] + D[1] * D[1] + D[2] * D[2])
-    if dn < 1e-12:
-        return np.nan
-    vt = (C[0] * D[0] + C[1] * D[1] + C[2] * D[2]) / (cn * dn)
-    nx = C[0] / cn - vt * D[0] / dn
-    ny = C[1] / cn - vt * D[1] / dn
-    nz = C[2] / cn - vt * D[2] / dn
-    nl = math.sqrt(nx * nx + ny * ny + nz * nz)
-    shift = 0.5 * (r + connector_radius) / nl if nl > 1e-9 else 0.0
-    P0 = C[0] - shift * nx
-    P1 = C[1] - shift * ny
-    P2 = C[2] - shift * nz
-    if P2 <= 1e-6:
+    P0, P1, P2 = _band_centre(C, D, r, connector_radius)
+    if not P2 > 1e-6:
         return np.nan
     px, py = P0 / P2, P1 / P2
     tx = (D[0] * P2 - P0 * D[2]) / (P2 * P2)
@@ -785,17 +789,17 @@ def _attach_pairs(knots, control, baseline, connectors, radius, connector_radius
     return out
 
 
+@numba.njit(cache=True, nogil=True)
 def _connector_images(C, D, radius, connector_radius):
-    """(n, 2) where ``_connector_residual`` puts the band's centre for axis points C with derivatives D
-    (one camera's frame, normalised image coordinates; NaN behind the camera)."""
-    cn = np.linalg.norm(C, axis=1, keepdims=True)
-    t = D / np.maximum(np.linalg.norm(D, axis=1, keepdims=True), 1e-12)
-    v = C / np.maximum(cn, 1e-12)
-    n = v - np.sum(v * t, axis=1, keepdims=True) * t
-    nl = np.linalg.norm(n, axis=1, keepdims=True)
-    P = C - 0.5 * (radius + connector_radius) * n / np.maximum(nl, 1e-9)
-    z = np.where(P[:, 2] > 1e-6, P[:, 2], np.nan)
-    return P[:, :2] / z[:, None]
+    """(n, 2) where ``_band_centre`` puts the band's centre for axis points C with derivatives D
+    (one camera's frame, normalised image coordinates; NaN where not in front of it)."""
+    out = np.full((C.shape[0], 2), np.nan)
+    for k in range(C.shape[0]):
+        P0, P1, P2 = _band_centre(C[k], D[k], radius, connector_radius)
+        if P2 > 1e-6:
+            out[k, 0] = P0 / P2
+            out[k, 1] = P1 / P2
+    return out
 
 
 @numba.njit(cache=True, nogil=True)
