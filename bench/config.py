@@ -450,14 +450,16 @@ class BenchConfig:
         return self._arm
 
 
-def _twin_tube(twin_toml: Path) -> dict[str, float]:
+def _twin_tube(twin_toml: Path) -> dict:
     """``arm_length_m`` and ``arm_radius_m`` of the arm the twin file names (``twin.params.tube_of``), and
-    ``connector_radius_m`` (its baseplates') where it has more than one section."""
-    from twin.params import ArmParams, tube_of, twin_arm_file
+    where it has more than one section ``connector_radius_m`` (its baseplates') and
+    ``section_lengths_m`` (what its sections can reach, ``twin.params.section_length_ranges_m``)."""
+    from twin.params import ArmParams, section_length_ranges_m, tube_of, twin_arm_file
 
     arm = ArmParams.load(twin_arm_file(twin_toml))
     length, radius = tube_of(arm)
-    joined = {"connector_radius_m": arm.baseplate.radius_m} if len(arm.sections) > 1 else {}
+    joined = ({"connector_radius_m": arm.baseplate.radius_m, "section_lengths_m": section_length_ranges_m(arm)}
+              if len(arm.sections) > 1 else {})
     return {"arm_length_m": length, "arm_radius_m": radius, **joined}
 
 

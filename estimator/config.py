@@ -109,6 +109,13 @@ class EstimatorConfig:
             section runs along the image rows its silhouette lines carry no disparity, the
             connector's band across it does. Their band is centred off the axis towards the camera,
             by an amount that depends on this radius. None: connectors are not used.
+        section_lengths_m: ((min, max), ...) for each section from the base, the range of its length
+            in metres: from the mount's face to the first connector's middle, between connectors'
+            middles, from the last one's middle to the tip (what the arm can reach, every actuator
+            at either end of its range). With ``connector_radius_m``, the default mode checks each
+            stretch between the connectors it located: a tip seen end-on beyond the last connector,
+            its last 60-80 mm hidden behind the rest, leaves a section far too short while every
+            point it shows fits the images. None: not checked (the whole length still is).
         arm_length_m: nominal arm length; an estimate shorter than ``min_length_fraction`` of it
             means part of the arm is hidden (folded behind itself, out of view): invalid.
             None disables the check.
@@ -180,6 +187,7 @@ class EstimatorConfig:
     arm_radius_m: float = 0.025
     arm_length_m: float | None = 0.685
     connector_radius_m: float | None = None
+    section_lengths_m: tuple | None = None
     compensation: str | None = None
     smoothing_degree: int | None = None
     roi: bool | None = None
@@ -244,6 +252,10 @@ class EstimatorConfig:
                "a positive length or None", self.arm_length_m)
         _check(self.connector_radius_m is None or (_number(self.connector_radius_m) and self.connector_radius_m > 0),
                "connector_radius_m", "a positive number of metres or None", self.connector_radius_m)
+        if self.section_lengths_m is not None:
+            object.__setattr__(self, "section_lengths_m", _section_ranges(self.section_lengths_m))
+            _check(self.connector_radius_m is not None, "section_lengths_m",
+                   "connector_radius_m as well (the connectors mark where the sections meet)", self.section_lengths_m)
         _check(_number(self.min_length_fraction) and 0 <= self.min_length_fraction < 1, "min_length_fraction",
                "a fraction in [0, 1)", self.min_length_fraction)
         _check(_number(self.max_length_fraction) and self.max_length_fraction > 1, "max_length_fraction",
@@ -289,6 +301,19 @@ class EstimatorConfig:
 
     def as_dict(self) -> dict:
         return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+def _section_ranges(value) -> tuple[tuple[float, float], ...]:
+    """``section_lengths_m`` as a tuple of (min, max) floats, checked: two sections or more, each
+    range finite with 0 < min <= max."""
+    expected = "two or more [min, max] ranges in metres, one per section, 0 < min <= max"
+    _check(isinstance(value, tuple | list) and len(value) >= 2, "section_lengths_m", expected, value)
+    out = []
+    for pair in value:
+        _check(isinstance(pair, tuple | list) and len(pair) == 2 and all(_number(v) for v in pair)
+               and 0 < pair[0] <= pair[1], "section_lengths_m", expected, value)
+        out.append((float(pair[0]), float(pair[1])))
+    return tuple(out)
 
 
 def _int(value) -> bool:

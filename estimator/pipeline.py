@@ -34,6 +34,7 @@ from estimator.edges import subpixel_edges, subpixel_edges_and_steps
 from estimator.mount import MountLearner
 from estimator.profile import BASE_RAMP_WIDTHS, BASE_SKIP_WIDTHS, base_ramp, measured_radius_m, with_width_cue
 from estimator.refinement import Centerline2D, edge_distances, refinement_passes, window_medians
+from estimator.sections import section_length_problem
 from estimator.segmentation import (
     bounding_box,
     contour_points,
@@ -863,6 +864,10 @@ class CenterlineEstimator:
         at = np.interp(np.linspace(0.0, arc[-1], cfg.n_points), arc, us)
         points = fit.points(at)
         self._check_length(points)
+        if cfg.section_lengths_m is not None and len(fit.connector_u):
+            problem = section_length_problem(np.interp(fit.connector_u, us, arc), float(arc[-1]), cfg.section_lengths_m)
+            if problem is not None:
+                raise _NoArmError(problem)
         radius = float(np.mean(fit.radius_bins))
         # The tip's outline, where it was fitted, is seen as well as any edge; an image left without
         # an end of the tip marks nothing beyond its last edges as measured.

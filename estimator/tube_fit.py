@@ -103,6 +103,8 @@ class TubeFit:
             that image: its outline's points, or its single end point (absent where unseen).
         cost: the final robust cost (residuals and priors): of two fits to the same observations
             from different starts, the lower one is the better.
+        connector_u: (C,) where each connector pair the fit was given lies on the final axis, in
+            the pairs' order (empty without connectors).
     """
 
     knots: np.ndarray
@@ -116,6 +118,7 @@ class TubeFit:
     edge_residual_px: np.ndarray
     tip_residual_px: dict = field(default_factory=dict)
     cost: float = math.inf
+    connector_u: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def points(self, us: np.ndarray) -> np.ndarray:
         return evaluate_many(self.knots, self.control, np.asarray(us, np.float64))[0]
@@ -1038,8 +1041,9 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
     at_tip[n_edges:n_edges + len(end_us)] = np.array(end_us) == 1.0
     tip_res = {int(side): residuals[at_tip & (sides == side)] for side in END_SIDES
                if np.any(at_tip & (sides == side))}
+    connector_u = attach_connectors(control)[::2]  # on the final axis (the fit may end between re-attachments)
     return TubeFit(knots, control, radii, radius_std, covariance, rms, inliers, us[:n_edges].copy(), edge_res,
-                   tip_res, cost)
+                   tip_res, cost, connector_u)
 
 
 def silhouette_lines(fit: TubeFit, edges: EdgeSet, baseline_m: float) -> np.ndarray:

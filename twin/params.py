@@ -305,3 +305,27 @@ def tube_of(arm: ArmParams) -> tuple[float, float]:
     at rest, and its sections' radii averaged over their lengths."""
     sections = sum(s.length_m for s in arm.sections)
     return arm.total_length_m, sum(s.radius_m * s.length_m for s in arm.sections) / sections
+
+
+def section_length_ranges_m(arm: ArmParams, gravity_mps2: float = 9.81) -> tuple[tuple[float, float], ...]:
+    """(min, max) length of each section as an estimator measures it between connectors: from the
+    mount's face to the first baseplate's middle, between baseplates' middles, from the last one's
+    middle to the tip.
+
+    The elastic part stretches by axial force / EA: every contractile PMA of the section at the
+    highest pressure (its force, moment / moment_arm, shortens it) or every extensile one (lengthens
+    it), plus or minus the weight of the arm beyond it (hanging or held upside down). Plates are rigid.
+    """
+    out = []
+    count = len(arm.sections)
+    masses = [s.mass_kg for s in arm.sections]
+    for i, section in enumerate(arm.sections):
+        forces = {kind: sum(float(p.moment_at(arm.max_pressure_bar)) / p.moment_arm_m
+                            for p in section.pmas if p.kind == kind) for kind in PMA_KINDS}
+        beyond = 0.5 * masses[i] + sum(masses[i + 1:]) + (count - 1 - i) * arm.baseplate.mass_kg
+        weight = beyond * gravity_mps2
+        shortest = section.length_m * (1.0 - (forces["contractile"] + weight) / section.EA_N)
+        longest = section.length_m * (1.0 + (forces["extensile"] + weight) / section.EA_N)
+        plates = arm.baseplate.thickness_m * (0.5 * (i > 0) + 0.5 * (i < count - 1))
+        out.append((max(shortest, 0.0) + plates, longest + plates))
+    return tuple(out)

@@ -7,6 +7,7 @@ import time
 import tomllib
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import bench.recording
@@ -62,7 +63,8 @@ def test_the_rig_config_holds_only_what_differs_from_bench_toml():
     data = tomllib.loads((MODELS / "bench_rig.toml").read_text())
     # (the connectors' radius: on the twin the estimator reads it from the arm file, on the rig from here)
     assert data == {"base": "bench.toml", "backend": "rig", "experiment": {"lead_in_s": 2.0},
-                    "estimator": {"connector_radius_m": 0.032}}
+                    "estimator": {"connector_radius_m": 0.032,
+                                  "section_lengths_m": [[0.148, 0.230], [0.231, 0.280], [0.223, 0.251]]}}
     sim, rig = load_bench_config(), load_bench_config(MODELS / "bench_rig.toml")
     assert rig.rig == sim.rig and rig.recording == sim.recording and rig.report == sim.report
 
@@ -270,4 +272,9 @@ def test_on_the_twin_the_estimator_is_told_the_twins_arm(tmp_path):
     rig = load_bench_config(MODELS / "bench_rig.toml").estimator_config()
     assert rig.arm_radius_m == 0.025 and rig.connector_radius_m == 0.032  # the rig file's own [estimator]
     assert load_bench_config(bench).estimator_config().connector_radius_m == 0.032
+    # what each section can reach, from the arm file's physics; the rig file's ranges hold the twin's
+    twin_ranges = np.array(shipped.section_lengths_m)
+    assert twin_ranges.shape == (3, 2) and np.all(twin_ranges[:, 0] < twin_ranges[:, 1])
+    assert np.all(np.array(rig.section_lengths_m)[:, 0] <= twin_ranges[:, 0] + 1e-9)
+    assert np.all(np.array(rig.section_lengths_m)[:, 1] >= twin_ranges[:, 1] - 1e-9)
 

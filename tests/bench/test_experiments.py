@@ -89,8 +89,12 @@ def test_rig_config_runs_the_same_experiment_on_the_rig():
     sim, rig = load_bench_config(), load_bench_config(REPO / "models" / "bench_rig.toml")
     assert rig.backend == "rig" and rig.rig is not None
     assert dataclasses.replace(rig.experiment, lead_in_s=0.0) == sim.experiment
-    # the same estimator, told on the rig what the twin's arm file tells it on the twin (the connectors' radius)
-    assert dict(rig.estimator) == {**sim.estimator, "connector_radius_m": sim.estimator_config().connector_radius_m}
+    # the same estimator, told on the rig what the twin's arm file tells it on the twin (the connectors'
+    # radius, what the sections can reach: rounded outwards)
+    told = sim.estimator_config()
+    assert dict(rig.estimator) == {**sim.estimator, "connector_radius_m": told.connector_radius_m,
+                                   "section_lengths_m": rig.estimator["section_lengths_m"]}
+    assert np.allclose(rig.estimator["section_lengths_m"], told.section_lengths_m, atol=0.0011)
     assert rig.rig.valves == sim.rig.valves
 
 

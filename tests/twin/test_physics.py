@@ -15,7 +15,7 @@ import pytest
 
 from tests.twin.elastica import Piece, cantilever_tip
 from twin.mjcf import STANDARD_GRAVITY_M_S2
-from twin.params import ArmParams, PMAParams
+from twin.params import ArmParams, PMAParams, section_length_ranges_m
 from twin.physics import ArmSimulation, NotSettledWarning, SimulationError
 from twin.shape import ArmShape
 
@@ -212,6 +212,15 @@ def test_full_ramp_on_all_channels_is_stable(params, arm):
     assert lengths[1] > params.sections[1].length_m * 1.05
     assert lengths[2] > params.sections[2].length_m * 1.05
     assert np.all(arm.section_bend_deg()[:2] < 5)
+    # what an estimator is told each section can reach (between the plates' middles): the hanging
+    # extensile sections, every PMA at the top of its table, reach their longest; the contractile one
+    # lies within its range, held above its shortest by the arm's weight
+    ranges = np.array(section_length_ranges_m(params))
+    plates = params.baseplate.thickness_m * np.array([0.5, 1.0, 0.5])
+    measured = lengths + plates
+    assert np.all((ranges[:, 0] <= measured) & (measured <= ranges[:, 1] + 1e-4)), (ranges, measured)
+    assert measured[1:] == pytest.approx(ranges[1:, 1], abs=1e-3)
+    assert measured[0] < params.sections[0].length_m * 0.95 and measured[0] - ranges[0, 0] < 0.01
 
 
 def test_paper_ramp_gives_a_visible_3d_shape_that_does_not_fold_in_the_camera(params, arm):
