@@ -15,7 +15,11 @@ import itertools
 
 import numpy as np
 
-SLACK_M = 0.015  # how far a measured stretch may lie outside its range (the connectors' and the tip's places)
+# How far a measured stretch may lie outside its range. A connector's band is placed along the arm
+# within a few millimetres where the tube runs straight through its plate, but up to about 20 mm off
+# at a sharp bend (the 6 s ramp's last frame: section 1 measured 247 mm against at most 229), and the
+# tip's end adds its own. The hidden ends this is for leave 45-80 mm out.
+SLACK_M = 0.03
 ORDINALS = ("first", "second", "third", "fourth", "fifth", "sixth", "seventh", "eighth")
 
 

@@ -17,6 +17,7 @@ RANGES = ((0.148, 0.230), (0.231, 0.280), (0.223, 0.251))
     ((0.230, 0.510), 0.761),  # all three at their longest
     ((0.200,), 0.690),  # one connector: the first
     ((0.458,), 0.690),  # one connector: the second
+    ((0.247,), 0.724),  # the 6 s ramp's last frame: a band at a sharp bend placed 17 mm past what section 1 reaches
 ])
 def test_lengths_the_arm_can_have_pass(arcs, length):
     assert section_length_problem(np.array(arcs), length, RANGES) is None
