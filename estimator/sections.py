@@ -45,29 +45,30 @@ def section_length_problem(connector_arcs_m: np.ndarray, length_m: float,
     lows = np.concatenate([[0.0], np.cumsum([r[0] for r in ranges_m])])
     highs = np.concatenate([[0.0], np.cumsum([r[1] for r in ranges_m])])
     places = np.concatenate([[0.0], arcs, [length_m]])
-    best = None
+    best = None  # (how far outside, the stretch's bounds, its length, its range)
     for chosen in itertools.combinations(range(1, sections), len(arcs)):
         bounds = (0, *chosen, sections)
-        worst = (0.0, 0)
+        worst = None
         for k in range(len(bounds) - 1):
             a, b = bounds[k], bounds[k + 1]
             stretch = places[k + 1] - places[k]
             lo, hi = lows[b] - lows[a], highs[b] - highs[a]
             off = max(lo - stretch, stretch - hi, 0.0)
-            if off > worst[0]:
-                worst = (off, k)
-        if best is None or worst[0] < best[0][0]:
-            best = (worst, bounds)
-    (off, k), bounds = best
+            if worst is None or off > worst[0]:
+                worst = (off, (a, b), stretch, (lo, hi))
+        if best is None or worst[0] < best[0]:
+            best = worst
+    off, (a, b), stretch, (lo, hi) = best
     if off <= slack_m:
         return None
-    a, b = bounds[k], bounds[k + 1]
-    stretch = places[k + 1] - places[k]
-    lo, hi = lows[b] - lows[a], highs[b] - highs[a]
-    start = "the base" if a == 0 else f"the {ORDINALS[a - 1]} connector"
-    end = "the tip" if b == sections else f"the {ORDINALS[b - 1]} connector"
+    start = "the base" if a == 0 else f"the {_ordinal(a)} connector"
+    end = "the tip" if b == sections else f"the {_ordinal(b)} connector"
     what = f"section {a + 1} measures" if b == a + 1 else f"sections {a + 1}-{b} measure"
     cause = ("its end hidden (seen end-on, or behind the arm)" if stretch < lo and b == sections else
              "a connector mistaken, or the tube fitted past the arm")
     return (f"{what} {stretch * 1e3:.0f} mm from {start} to {end}, where the arm allows "
             f"{lo * 1e3:.0f}-{hi * 1e3:.0f} mm (section_lengths_m): {cause}")
+
+
+def _ordinal(n: int) -> str:
+    return ORDINALS[n - 1] if n <= len(ORDINALS) else f"{n}th"
