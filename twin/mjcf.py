@@ -56,9 +56,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from twin.params import ArmParams, PMAParams
+from twin.params import STANDARD_GRAVITY_M_S2, ArmParams, PMAParams
 
-STANDARD_GRAVITY_M_S2 = 9.80665
 JOINT_SUFFIXES = ("stretch", "bend_x", "bend_y", "twist")
 _FORCE_LIMIT = 1e9  # the open side of a hinge-function actuator's force range
 

@@ -25,6 +25,7 @@ from estimator.config_file import ConfigFileError, TableReader, is_number, read_
 DEFAULT_PARAMS_PATH = Path(str(files("models") / "arm.toml"))
 
 PMA_KINDS = ("contractile", "extensile")
+STANDARD_GRAVITY_M_S2 = 9.80665  # the twin's gravity (twin.mjcf), and the weight the sections carry
 _NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 
 
@@ -307,7 +308,8 @@ def tube_of(arm: ArmParams) -> tuple[float, float]:
     return arm.total_length_m, sum(s.radius_m * s.length_m for s in arm.sections) / sections
 
 
-def section_length_ranges_m(arm: ArmParams, gravity_mps2: float = 9.81) -> tuple[tuple[float, float], ...]:
+def section_length_ranges_m(arm: ArmParams,
+                            gravity_mps2: float = STANDARD_GRAVITY_M_S2) -> tuple[tuple[float, float], ...]:
     """(min, max) length of each section as an estimator measures it between connectors: from the
     mount's face to the first baseplate's middle, between baseplates' middles, from the last one's
     middle to the tip.
