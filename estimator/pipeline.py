@@ -87,6 +87,15 @@ MAX_POINT_STD_M = 0.04
 # condition) are unchanged. A bound at 7.8 mm caught four more but refused the ramp's middle frame
 # in the CI's sparse lab and dim sets (8-9 mm there, tracked 5 s apart).
 MAX_TIP_ALONG_STD_M = 0.010
+# A tip pointing away from the camera hides its own end: past the rim's far arc the images show
+# nothing of it, and the fit's standard deviation along the arm came out about half the error there.
+# On the twin's random sequences (1,428 valid frames over 28 stored sets), tips within 18 degrees
+# of pointing straight away: 27 frames, 6 of them 10-18 mm short with 6.4-9.5 mm of this standard
+# deviation. Such tips are held to 6 mm: all six refused, with 10 of the 21 others (two of them
+# 9-10 mm off). Tips pointing elsewhere keep the 10 mm bound (a 6 mm one everywhere refused 10x more).
+AWAY_TIP_COSINE = 0.95  # cos 18 degrees, between the tip's direction and the line of sight to it
+MAX_AWAY_TIP_ALONG_STD_M = 0.006
+TIP_DIRECTION_M = 0.02  # the tip's direction is taken over this much of the arm
 # The tip's standard deviation assumes its outline fits as well as the edges do. An outline the
 # fitted end misses by more than TIP_OUTLINE_NOISE_PX RMS (tips within 10 mm: median 0.12 px, nine
 # in ten under 0.4 px; false valid ones: median 0.45 px) has pulled the tip where it does not quite
@@ -902,9 +911,12 @@ class CenterlineEstimator:
             raise _NoArmError(f"the images barely constrain the arm near point {worst} of {len(at)}: "
                               f"{std[worst] * 1e3:.0f} mm standard deviation")
         along = float(fit.along_std_m(np.array([1.0]))[0])
-        if along > MAX_TIP_ALONG_STD_M:
-            raise _NoArmError(f"where the tip ends is uncertain: {along * 1e3:.0f} mm standard deviation along the arm "
-                              "(it points nearly along a line of sight, or its end is hidden behind the arm)")
+        away = _away_cosine(axis, arc, self._rect.baseline_m)
+        limit = MAX_AWAY_TIP_ALONG_STD_M if away > AWAY_TIP_COSINE else MAX_TIP_ALONG_STD_M
+        if along > limit:
+            raise _NoArmError(f"where the tip ends is uncertain: {along * 1e3:.1f} mm standard deviation along the arm "
+                              + ("(it points away from the camera, its end behind itself)" if away > AWAY_TIP_COSINE
+                                 else "(it points nearly along a line of sight, or its end is hidden behind the arm)"))
         self._last_fit = fit
         source = (f"measured over {self._radius_frames} frames" if self._radius_frames else "configured")
         self._tube_extras = (measured, std, radius, source)
@@ -1313,6 +1325,16 @@ def _tip_std_with_misfit(std_m: float, tip_residual_px: dict) -> tuple[float, fl
             if rms > misfit:
                 misfit, image = rms, k
     return std_m * max(1.0, misfit / TIP_OUTLINE_NOISE_PX), misfit, image
+
+
+def _away_cosine(axis: np.ndarray, arc: np.ndarray, baseline_m: float) -> float:
+    """Cosine between the tip's direction (over its last ``TIP_DIRECTION_M`` of arc) and the line of
+    sight to the tip from midway between the cameras; 1 points straight away from them."""
+    back = int(np.searchsorted(arc, arc[-1] - TIP_DIRECTION_M))
+    direction = axis[-1] - axis[min(back, len(axis) - 2)]
+    sight = axis[-1] - np.array([0.5 * baseline_m, 0.0, 0.0])
+    norm = float(np.linalg.norm(direction) * np.linalg.norm(sight))
+    return float(direction @ sight / norm) if norm > 0 else 0.0
 
 
 def _explained(residuals_px: np.ndarray | None, sigma_px: float) -> bool:
