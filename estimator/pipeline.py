@@ -93,6 +93,8 @@ MAX_TIP_ALONG_STD_M = 0.010
 # of pointing straight away: 27 frames, 6 of them 10-18 mm short with 6.4-9.5 mm of this standard
 # deviation. Such tips are held to 6 mm: all six refused, with 10 of the 21 others (two of them
 # 9-10 mm off). Tips pointing elsewhere keep the 10 mm bound (a 6 mm one everywhere refused 10x more).
+# The frame is refused but tracked on: restarting the tracking after it (as after other refusals)
+# put later frames of the random sequences 10-17 mm off.
 AWAY_TIP_COSINE = 0.95  # cos 18 degrees, between the tip's direction and the line of sight to it
 MAX_AWAY_TIP_ALONG_STD_M = 0.006
 TIP_DIRECTION_M = 0.02  # the tip's direction is taken over this much of the arm
@@ -302,7 +304,8 @@ class CenterlineEstimator:
 
         Returns:
             The estimate; ``valid=False`` with a reason (and the warm state untouched) when no arm
-            is found or the silhouette cannot be trusted.
+            is found or the silhouette cannot be trusted. A frame refused only because its tip,
+            pointing away from the camera, may end elsewhere along the arm still seeds the next one.
 
         Raises:
             ValueError: an image has the wrong type, dtype or size for the calibration.
@@ -314,6 +317,7 @@ class CenterlineEstimator:
         self._flags: list[str] = []  # plausibility checks failed in this frame (both images append)
         self._unsmoothed = np.zeros((0, 3))
         self._tube_extras = None
+        self._untrusted_tip = ""  # set where the shape is fitted but where its tip ends is not known well enough
         try:
             if self._rect.baseline_m <= 0:  # the right camera to the left: every depth would come out negative
                 raise _NoArmError("points behind the camera: the calibration puts the right camera to the left of "
@@ -340,6 +344,13 @@ class CenterlineEstimator:
                                      sides[side].area_px / self._scale**2)
             self._learn_colours(sides)
         timings["total"] = (time.perf_counter() - start) * 1e3
+        if self._untrusted_tip:
+            # Refused, but tracked on: the shape is as good as a valid frame's everywhere but the tip's
+            # end, so the next frame starts from it as it did before the refusal existed.
+            self._tube_extras = None
+            empty2 = np.zeros((0, 2))
+            return EstimateResult(np.zeros((0, 3)), False, self._untrusted_tip, empty2, empty2, timings,
+                                  flags=tuple(dict.fromkeys(self._flags)))
         extras = {}
         if self._tube_extras is not None:
             measured, std, radius, source = self._tube_extras
@@ -773,6 +784,7 @@ class CenterlineEstimator:
         points, base first. The edges were measured with each image (``_silhouette_edges``).
         """
         cfg = self.config
+        self._untrusted_tip = ""  # this fit's own verdict, not an earlier attempt's
         P = self._rect.P["left"]
         f, centre = self._rect.focal_px, np.array([P[0, 2], P[1, 2]])
         side_ids, xy, chord, steps = [], [], [], []
@@ -911,12 +923,12 @@ class CenterlineEstimator:
             raise _NoArmError(f"the images barely constrain the arm near point {worst} of {len(at)}: "
                               f"{std[worst] * 1e3:.0f} mm standard deviation")
         along = float(fit.along_std_m(np.array([1.0]))[0])
-        away = _away_cosine(axis, arc, self._rect.baseline_m)
-        limit = MAX_AWAY_TIP_ALONG_STD_M if away > AWAY_TIP_COSINE else MAX_TIP_ALONG_STD_M
-        if along > limit:
-            raise _NoArmError(f"where the tip ends is uncertain: {along * 1e3:.1f} mm standard deviation along the arm "
-                              + ("(it points away from the camera, its end behind itself)" if away > AWAY_TIP_COSINE
-                                 else "(it points nearly along a line of sight, or its end is hidden behind the arm)"))
+        if along > MAX_TIP_ALONG_STD_M:
+            raise _NoArmError(f"where the tip ends is uncertain: {along * 1e3:.0f} mm standard deviation along the arm "
+                              "(it points nearly along a line of sight, or its end is hidden behind the arm)")
+        if along > MAX_AWAY_TIP_ALONG_STD_M and _away_cosine(axis, arc, self._rect.baseline_m) > AWAY_TIP_COSINE:
+            self._untrusted_tip = (f"where the tip ends is uncertain: {along * 1e3:.1f} mm standard deviation along "
+                                   "the arm (it points away from the camera, its end behind itself)")
         self._last_fit = fit
         source = (f"measured over {self._radius_frames} frames" if self._radius_frames else "configured")
         self._tube_extras = (measured, std, radius, source)

@@ -5,8 +5,9 @@ reads off the fitted axis).
 Sliding such a tip along the arm barely moves its end in either image, so where it ends is poorly
 known, although every point stays on the curve (a point's ``point_std_m`` leaves sliding out). The
 twin's random pressure sequences showed it: tips 10-74 mm off along the arm, valid. The fit's
-standard deviation along the arm at the tip now refuses most of them; this independent scene shows
-where the bound falls short.
+standard deviation along the arm at the tip refuses most of them (10 mm), and tips pointing away
+from the camera are held to 6 mm: this independent scene, which the 10 mm bound let through 26 mm
+off, is refused by the second.
 """
 
 import numpy as np
@@ -38,18 +39,38 @@ def _tip_cosine(points: np.ndarray) -> float:
     return float(t @ points[-1] / (np.linalg.norm(t) * np.linalg.norm(points[-1])))
 
 
-def test_a_tip_pointing_along_the_line_of_sight_is_refused_not_returned_far_off():
+@pytest.fixture(scope="module")
+def away_scene():
+    points, joints = _curling_away(-1.57)
+    assert _tip_cosine(points) > 0.98
+    return render_scene(zed_like_calibration(), points, joints, seed=3)
+
+
+def test_a_tip_pointing_along_the_line_of_sight_is_refused_not_returned_far_off(away_scene):
     """A scene the bounds were not chosen on: the tip points within 9 degrees of the line of sight,
     away from the camera. With the 10 mm bound alone it came back valid 26 mm off along the arm
     (7.6 mm standard deviation along it); a tip pointing away is held to 6 mm
     (``MAX_AWAY_TIP_ALONG_STD_M``, chosen on the twin's random sequences), and this one is refused."""
-    points, joints = _curling_away(-1.57)
-    assert _tip_cosine(points) > 0.98
-    scene = render_scene(zed_like_calibration(), points, joints, seed=3)
+    scene = away_scene
     result = CenterlineEstimator(scene.calibration, EstimatorConfig()).estimate(scene.left, scene.right)
-    assert not result.valid
+    assert not result.valid and result.points.shape == (0, 3)
     assert "where the tip ends is uncertain" in result.reason and "points away from the camera" in result.reason, \
         result.reason
+
+
+def test_a_tip_refused_for_pointing_away_still_seeds_the_next_frame(away_scene):
+    """Only the tip's end is in doubt, not the shape: the refused frame is tracked on (restarting
+    after it put later frames of the twin's random sequences 10-17 mm off), where a frame refused
+    for anything else leaves the warm state as it was."""
+    scene = away_scene
+    est = CenterlineEstimator(scene.calibration, EstimatorConfig())
+    result = est.estimate(scene.left, scene.right)
+    assert "points away from the camera" in result.reason
+    assert est._warm_fit is not None and all(nodes is not None for nodes in est._warm.values())
+    blank = np.zeros_like(scene.left)
+    other = CenterlineEstimator(scene.calibration, EstimatorConfig())
+    assert not other.estimate(blank, blank).valid
+    assert other._warm_fit is None
 
 
 def test_a_tip_turned_away_but_seen_across_stays_valid():
