@@ -4,12 +4,13 @@ SOM, measured side by side in one run.
 
 Frames come from the digital twin along the paper's ramp (s1_a, s2_a, s3 from 0 to 2.5 bar), so
 the arm takes the shapes of the experiment; the lab column renders the same ramp in the ``lab``
-scene preset (brick wall, wood, skin, cables, two lights). Those frames are 58 s / ``--frames``
-apart, so the arm moves far between them (a hard case for the warm start: its second tube-fit
-start and its cold searches run often). The "lab scene, 30 fps stream" column is what a live
-camera hands over: frames 1/30 s apart from t = 29 s of the ramp on. Each configuration runs its
-whole sequence with warm start, interleaved frame by frame so machine load affects all of them
-alike; medians are quoted.
+scene preset (brick wall, wood, skin, cables, two lights), the blur column in the ``blur`` preset
+(the lab with a 9 px camera shake: the blur is measured and taken out, stages ``blur`` and
+``deblur``). Those frames are 58 s / ``--frames`` apart, so the arm moves far between them (a hard
+case for the warm start: its second tube-fit start and its cold searches run often). The "lab
+scene, 30 fps stream" column is what a live camera hands over: frames 1/30 s apart from t = 29 s of
+the ramp on. Each configuration runs its whole sequence with warm start, interleaved frame by frame
+so machine load affects all of them alike; medians are quoted.
 
     python benchmarks/estimator_speed.py [--frames 30] [--repeats 3]
 """
@@ -35,6 +36,7 @@ CONFIGS = {
     "default": ("clean", None, EstimatorConfig()),
     "default, lab scene": ("lab", None, EstimatorConfig()),
     "lab scene, 30 fps stream": ("lab", STREAM, EstimatorConfig()),
+    "default, blur scene": ("blur", None, EstimatorConfig()),
     "paper (compiled SOM)": ("clean", None, EstimatorConfig(mode="paper")),
     "paper (numpy SOM)": ("clean", None, EstimatorConfig(mode="paper", som_compiled=False)),
 }
@@ -104,8 +106,8 @@ def main() -> None:
             est.reset()
             cold[name].append(est.estimate(*frames_of[name][i]).timings_ms["total"])
 
-    order = ["locate", "rectify", "segment", "centerline", "refine", "edges", "match", "triangulate", "smooth",
-             "tube", "output", "total"]
+    order = ["locate", "rectify", "deblur", "segment", "centerline", "refine", "edges", "blur", "match",
+             "triangulate", "smooth", "tube", "output", "total"]
     print(f"Estimator speed, {args.frames} twin frames (1280x720 stereo pairs) x {args.repeats}, medians in ms")
     print("(stage times add both images, which run in parallel; 'total' is wall time per pair)\n")
     print(f"{'stage':<12}" + "".join(f"{name:>26}" for name in estimators))

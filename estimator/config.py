@@ -35,6 +35,7 @@ _PRESETS = {
         "som_order": "given",
         "plausibility_checks": False,  # the paper reports every frame
         "tube_fit": False,
+        "deblur": False,
     },
     "default": {
         "roi": True,
@@ -50,6 +51,7 @@ _PRESETS = {
         "som_order": "shuffled",
         "plausibility_checks": True,
         "tube_fit": True,
+        "deblur": True,
     },
 }
 
@@ -154,6 +156,9 @@ class EstimatorConfig:
             width (between parts more than two widths apart along it) is a self-overlap: invalid.
         tube_fit: refine the 3D centerline by fitting a tube (a B-spline axis with a radius) to the
             sub-pixel silhouette edges of both images (default mode).
+        deblur: measure a linear motion blur (camera shake, a fast pan) from the edges' steps and take
+            it out of both images before the arm is measured (``estimator.deblur``; default mode,
+            with ``tube_fit``).
     """
 
     mode: str = "default"
@@ -201,6 +206,7 @@ class EstimatorConfig:
     max_wide_fraction: float = 0.08
     plausibility_checks: bool | None = None
     tube_fit: bool | None = None
+    deblur: bool | None = None
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -274,7 +280,7 @@ class EstimatorConfig:
                    self.base_pixel)
             object.__setattr__(self, "base_pixel", (float(bp[0]), float(bp[1])))
         for name in ("roi", "medial_refinement", "extend_ends", "som_compiled", "som_shrink", "plausibility_checks",
-                     "tube_fit"):
+                     "tube_fit", "deblur"):
             _check(isinstance(getattr(self, name), bool), name, "true or false", getattr(self, name))
 
     @classmethod

@@ -30,7 +30,8 @@ from estimator.centerline import centerline_nodes
 from estimator.colour_model import ArmColourModel
 from estimator.config import EstimatorConfig
 from estimator.correspondence import MIN_SINE, compensate_nodes, match_rows
-from estimator.edges import subpixel_edges, subpixel_edges_and_steps
+from estimator.deblur import LinearBlur, blur_from_steps, deblur
+from estimator.edges import step_widths, subpixel_edges, subpixel_edges_and_steps
 from estimator.mount import MountLearner
 from estimator.profile import BASE_RAMP_WIDTHS, BASE_SKIP_WIDTHS, base_ramp, measured_radius_m, with_width_cue
 from estimator.refinement import Centerline2D, edge_distances, refinement_passes, window_medians
@@ -125,6 +126,8 @@ MIN_WARM_CLEAN_CHORDS = 0.7  # below this share from the last frame's chain, the
 REFINE_PASSES = 1  # chord passes of the 2D refinement (the tube fit does the sub-pixel work since)
 MAX_CORRIDOR_CUT = 0.1  # share of the arm-coloured pixels touching the corridor that it may cut away
 MAX_UNCOVERED = 0.01  # share of arm samples a warm-started chain may leave further than a width from it
+BLUR_RETRY_PX = 1.5  # a frame whose blur differs from the one taken out by this much (or by BLUR_RETRY_DEG) is redone
+BLUR_RETRY_DEG = 20.0
 FOCUSED_STEP_PX = 2.0  # an edge's step (its 20-80 % rise) up to this wide counts as focused
 BLURRED_EDGE_SIGMA = 0.6  # beyond it, the edge's sigma grows by this share of the excess width (0.3 before:
 # 60-frame sets, false valid blur 7 -> 4, dim 1 -> 0, occluded 1 -> 0, random 1 -> 0, unseen random:1 13 -> 10,
@@ -206,6 +209,7 @@ class _Side:
     offset: np.ndarray | None = None  # its top-left corner on the rectified canvas
     edges: tuple | None = None  # (edge points, their chords' centres, their steps' widths, (base, tip) ends,
     #                              outlines at both ends)
+    steps: tuple | None = None  # (normals (K, 2), step widths (K,)) of the raw image's edges: how it is blurred
 
 
 class CenterlineEstimator:
@@ -243,6 +247,7 @@ class CenterlineEstimator:
         self._radius_frames = 0
         self._tube_extras: tuple | None = None
         self._base = MountLearner()
+        self._blur: LinearBlur | None = None  # the blur taken out of the images (``estimator.deblur``)
 
     def reset(self) -> None:
         """Forget the previous frame: the next estimate starts cold."""
@@ -256,6 +261,7 @@ class CenterlineEstimator:
         self._moving_fast = False  # the last frame's tube needed its second start
         self._radius = self._radius_info = None
         self._radius_frames = 0
+        self._blur = None
 
     def warm_up(self) -> None:
         """Compile the numba stages now, on a synthetic pair, so the first real frame is not slow.
@@ -322,7 +328,10 @@ class CenterlineEstimator:
             if self._rect.baseline_m <= 0:  # the right camera to the left: every depth would come out negative
                 raise _NoArmError("points behind the camera: the calibration puts the right camera to the left of "
                                   "the left one (check the baseline sign in the calibration)")
-            sides = self._process_both(left_bgr, right_bgr, timings)
+            located = self._locate_both(left_bgr, right_bgr, timings)
+            sides = self._process_both(left_bgr, right_bgr, timings, located)
+            if self._blur_changed(sides):  # this frame again, with the blur it showed taken out
+                sides = self._process_both(left_bgr, right_bgr, timings, located)
             self._orient_right_like_left(sides)
             if self.config.mode == "paper" or sides["left"].curve is None or sides["right"].curve is None:
                 points, uv_left_rect, uv_right_rect = self._reconstruct_nodes(sides, timings)
@@ -363,14 +372,18 @@ class CenterlineEstimator:
 
     # --- per image ----------------------------------------------------------------------
 
-    def _process_both(self, left_bgr: np.ndarray, right_bgr: np.ndarray, timings: dict) -> dict[str, _Side]:
+    def _locate_both(self, left_bgr: np.ndarray, right_bgr: np.ndarray, timings: dict) -> dict:
+        """side -> where the arm is (``_locate``), or None for the whole image (``roi`` off)."""
+        if not self.config.roi:
+            return {side: None for side in SIDES}
+        with _timed(timings, "locate"):
+            return self._locate({"left": left_bgr, "right": right_bgr})
+
+    def _process_both(self, left_bgr: np.ndarray, right_bgr: np.ndarray, timings: dict,
+                      located: dict) -> dict[str, _Side]:
         """Both images at once: the right one on a worker thread (OpenCV and the compiled
         stages release the GIL), the left one here (or one after the other, see
         ``use_second_thread``). Stage timings add up both images."""
-        located = {side: None for side in SIDES}
-        if self.config.roi:
-            with _timed(timings, "locate"):
-                located = self._locate({"left": left_bgr, "right": right_bgr})
         right_timings: dict[str, float] = {}
         if _SECOND_THREAD:
             future = _worker().submit(self._process_side, right_bgr, "right", right_timings, located["right"])
@@ -387,6 +400,19 @@ class CenterlineEstimator:
             raise right
         return {"left": left, "right": right}
 
+    def _blur_changed(self, sides: dict[str, _Side]) -> bool:
+        """Measure the blur both raw images show (their edges' steps) and keep it for the next frame; True
+        when it differs from the one taken out of this frame's images (none at a sequence's start, or
+        where it came on): the frame is then processed again with the new one."""
+        measured = [sides[side].steps for side in SIDES if sides[side].steps is not None]
+        if not measured:
+            return False
+        blur = blur_from_steps(np.concatenate([m[0] for m in measured]), np.concatenate([m[1] for m in measured]))
+        used, self._blur = self._blur, blur
+        if blur is None:
+            return used is not None
+        return blur.differs_from(used, BLUR_RETRY_PX, BLUR_RETRY_DEG)
+
     def _check_image(self, name: str, image) -> None:
         w, h = self.calibration.image_size
         if not isinstance(image, np.ndarray):
@@ -401,7 +427,10 @@ class CenterlineEstimator:
         cfg = self.config
         with _timed(timings, "rectify"):
             roi = (0, 0, *self._rect.size) if located is None else located[0]
-            crop = self._rect.rectify_image(image, side, roi)
+            crop = raw = self._rect.rectify_image(image, side, roi)
+        if self._blur is not None and cfg.deblur:
+            with _timed(timings, "deblur"):
+                crop = deblur(raw, self._blur)
         with _timed(timings, "segment"):
             learn = located is not None
             colour_filter = None
@@ -432,18 +461,21 @@ class CenterlineEstimator:
             # seconds apart): the chain crosses itself or leaves the silhouette. Started over from
             # this image alone, the frame is judged as a first frame is.
             nodes, curve, width = self._trace(mask, samples, offset, side, None, timings)
-        edges = None
+        edges = steps = None
         if cfg.medial_refinement:
             if cfg.tube_fit:
                 with _timed(timings, "edges"):
                     edges = _silhouette_edges(crop, mask, curve, offset)
+                if cfg.deblur:
+                    with _timed(timings, "blur"):
+                        steps = _raw_steps(raw, curve, offset, edges, deblurred=crop is not raw)
         else:
             nodes = nodes + offset
             width = float(np.count_nonzero(mask)) / max(_polyline_length(nodes), 1.0)
             with self._plausibility("self_approach"):
                 _check_self_approach(nodes, width, cfg.max_self_approach, side)
         return _Side(nodes, curve, width, int(np.count_nonzero(mask)), (hsv, gate, mask, offset) if learn else None,
-                     crop, offset, edges)
+                     crop, offset, edges, steps)
 
     def _trace(self, mask: np.ndarray, samples: np.ndarray, offset: np.ndarray, side: str,
                warm: np.ndarray | None, timings: dict,
@@ -1052,6 +1084,29 @@ def _acceptable(fit: TubeFit | None) -> bool:
 _STD_CHECK_AT = np.linspace(0.0, 1.0, 21)
 
 
+def _chord_normals(curve: Centerline2D) -> tuple[np.ndarray, np.ndarray]:
+    """(unit normals (M, 2) of the curve at its samples, the chords measured: clean ones, every ``EDGE_STRIDE``-th)."""
+    tangent = np.gradient(curve.points, axis=0)
+    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True) + 1e-12
+    normals = np.column_stack([-tangent[:, 1], tangent[:, 0]])
+    return normals, curve.valid & (np.arange(len(curve.valid)) % EDGE_STRIDE == 0)
+
+
+def _raw_steps(raw: np.ndarray, curve: Centerline2D, offset: np.ndarray, edges: tuple, deblurred: bool):
+    """(normals (K, 2), step widths (K,)) of the raw image's edges along ``curve``: what tells how it is
+    blurred. Only where the edges measured for the fit are wider than focused, or the image was
+    deblurred, are the widths read again with the levels settled (``step_widths``); a focused image
+    reports none (no blur) and costs nothing more."""
+    widths = edges[2]
+    if not deblurred and (len(widths) == 0 or np.median(widths) <= FOCUSED_STEP_PX):
+        return np.zeros((0, 2)), np.zeros(0)
+    normals, pick = _chord_normals(curve)
+    found = step_widths(raw, curve.points - offset, normals, curve.half_width_px, pick)
+    ok = found > 0
+    both = np.concatenate([-normals[ok[:, 0]], normals[ok[:, 1]]])
+    return both, np.concatenate([found[ok[:, 0], 0], found[ok[:, 1], 1]])
+
+
 def _silhouette_edges(image: np.ndarray, mask: np.ndarray, curve: Centerline2D, offset: np.ndarray):
     """Sub-pixel silhouette edges of one image's clean chords, its two ends and the outline around
     each end (rectified canvas pixels).
@@ -1064,10 +1119,7 @@ def _silhouette_edges(image: np.ndarray, mask: np.ndarray, curve: Centerline2D, 
         and tip ends, (outline at the base (M, 2), outline at the tip (M, 2)), the connectors' centres
         (C, 2) base first (``_connector_centres``)).
     """
-    tangent = np.gradient(curve.points, axis=0)
-    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True) + 1e-12
-    normals = np.column_stack([-tangent[:, 1], tangent[:, 0]])
-    pick = curve.valid & (np.arange(len(curve.valid)) % EDGE_STRIDE == 0)
+    normals, pick = _chord_normals(curve)
     offsets, _, steps = subpixel_edges_and_steps(image, curve.points - offset, normals, curve.half_width_px, pick)
     rescued = _rescued_chords(image, curve, offset, normals, offsets, pick)
     if rescued is not None:
