@@ -58,6 +58,20 @@ def test_outliers_do_not_move_the_blur():
     assert blur.length_px == pytest.approx(8.0, abs=0.5)
 
 
+def test_a_blur_no_one_segment_explains_is_left_in():
+    """The arm's own motion blur is not one segment: an arm hanging straight down and swinging sideways
+    blurs nothing at its mount and most at its tip (here 0 to 14 px along the rows). Taken out as one
+    segment, such a blur rang inside the arm; the camera's shake over the same edges is one segment."""
+    rng = np.random.default_rng(6)
+    along = rng.uniform(0.0, 1.0, 400)  # where each edge lies along the arm, mount 0, tip 1
+    normals = _normals(rng.normal(0.0, 2.0, 400) + rng.choice([0.0, 180.0], 400))
+    projected = 14.0 * along * np.abs(normals[:, 0])
+    swing = np.sqrt(FOCUSED_RISE_PX**2 + (RAMP_RISE * projected) ** 2) + rng.normal(0.0, 0.1, 400)
+    assert blur_from_steps(normals, swing) is None
+    shake = blur_from_steps(normals, _model_widths(normals, 9.0, 0.0, rng))
+    assert shake is not None and shake.length_px == pytest.approx(9.0, abs=0.3)
+
+
 def test_focused_or_unmeasured_edges_give_no_blur():
     rng = np.random.default_rng(4)
     normals = _normals(rng.uniform(0, 360, 400))
