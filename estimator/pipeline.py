@@ -349,8 +349,12 @@ class CenterlineEstimator:
             self._warm_fit = self._last_fit
             for side in SIDES:
                 self._warm[side] = sides[side].nodes
-                self._track[side] = (sides[side].width_px / self._scale,
-                                     sides[side].area_px / self._scale**2)
+                # The area the next frame's corridor is held to: the arm's part of this frame's coarse
+                # gate, read from the raw image as the corridor's will be (the fine mask's area, from the
+                # deblurred crop, is a quarter larger on a blurred one than any corridor of it).
+                coarse = (sides[side].area_px / self._scale**2 if located[side] is None
+                          else np.count_nonzero(located[side][1]))
+                self._track[side] = (sides[side].width_px / self._scale, coarse)
             self._learn_colours(sides)
         timings["total"] = (time.perf_counter() - start) * 1e3
         if self._untrusted_tip:
