@@ -7,7 +7,7 @@ import pytest
 
 from bench.config import load_bench_config
 from bench.episodes import _captures, sequence_spec
-from estimator import CenterlineEstimator, EstimatorConfig
+from estimator import CenterlineEstimator
 
 
 @pytest.fixture(scope="module")
