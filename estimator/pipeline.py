@@ -351,7 +351,7 @@ class CenterlineEstimator:
                 self._warm[side] = sides[side].nodes
                 # The area the next frame's corridor is held to: the arm's part of this frame's coarse
                 # gate, read from the raw image as the corridor's will be (the fine mask's area, from the
-                # deblurred crop, is a quarter larger on a blurred one than any corridor of it).
+                # deblurred crop, is a third larger on a blurred one than any corridor of it).
                 coarse = (sides[side].area_px / self._scale**2 if located[side] is None
                           else np.count_nonzero(located[side][1]))
                 self._track[side] = (sides[side].width_px / self._scale, coarse)
