@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from estimator import EstimatorConfig
-from estimator.pipeline import MAX_CONNECTOR_ROW_PX, _connector_centres, _paired_connectors
+from estimator.pipeline import MAX_CONNECTOR_ROW_PX, _connector_centres, _paired_connectors, _paired_views
 from estimator.refinement import Centerline2D
 from estimator.tube_fit import _connector_pair_residual, _connector_residual, _end_residual
 from tests.estimator.test_tube_fit import CENTRES, B, F, _middle_depth_error_mm, _rows_curve, fit, tube_edges
@@ -175,6 +175,50 @@ def test_connectors_are_paired_only_when_both_images_show_as_many_on_about_the_s
     assert _paired_connectors(left[:0], right[:0]) is None
     shifted = right + [0.0, MAX_CONNECTOR_ROW_PX + 1.0]
     assert _paired_connectors(left, shifted) is None
+
+
+@pytest.mark.parametrize("shake", [0.0, 9.0])
+def test_a_thin_band_the_mask_closed_over_is_found_in_the_image_colour(shake):
+    """A connector seen at a slant is a band of a few pixels that the mask's median and closing fill in:
+    every chord is clean, so only the colour along the centerline shows it (with ``bands``)."""
+    curve = _curve_with_gaps([])
+    image = _tube_image(300.3, gap_px=4.0, shake_px=shake)
+    assert len(_connector_centres(image, curve, np.zeros(2))) == 0
+    found = _connector_centres(image, curve, np.zeros(2), bands=True)
+    assert found.shape == (1, 2)
+    assert abs(found[0, 0] - 300.3) < 0.15, found
+
+
+def test_shading_along_the_tube_is_not_taken_for_a_band():
+    """A tube lit from one end (its colour fading by half over its length) and a dark mount at its
+    base: no band between them."""
+    curve = _curve_with_gaps([])
+    image = _tube_image(700.0, shake_px=0.0)  # the band off the image
+    fade = np.linspace(1.0, 0.5, image.shape[1])[None, :, None]
+    shaded = np.clip(image * fade, 0, 255).astype(np.uint8)
+    shaded[:, :48] = (40, 40, 45)  # the mount, where the centerline starts
+    assert len(_connector_centres(shaded, curve, np.zeros(2), bands=True)) == 0
+
+
+def test_bands_are_looked_for_only_where_the_gaps_leave_the_images_disagreeing():
+    left = np.array([[400.0, 300.0], [420.0, 500.0]])
+    right = left - [80.0, 0.0]
+    at_gaps = _paired_connectors(left, right)
+    asked = []
+
+    def bands(shown):
+        def with_bands(k):
+            asked.append(k)
+            return shown[k]
+        return with_bands
+
+    # the gaps pair: the bands are not looked for
+    assert np.array_equal(_paired_views([left, right], bands([left, np.vstack([right, [[500.0, 600.0]]])])), at_gaps)
+    assert asked == []
+    # one image's mask closed over a connector: its bands complete the pairs
+    assert np.array_equal(_paired_views([left[:1], right], bands([left, right])), at_gaps)
+    assert np.array_equal(_paired_views([left, right[1:]], bands([left, right])), at_gaps)
+    assert _paired_views([left[:1], right], bands([left[:1], right])) is None
 
 
 def test_connector_radius_is_checked():
