@@ -19,7 +19,7 @@ import threading
 import time
 from concurrent.futures import ThreadPoolExecutor, wait
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -198,6 +198,10 @@ class _NoArmError(Exception):
     """A frame without a trustworthy centerline; the message becomes ``EstimateResult.reason``."""
 
 
+class _TooLongError(_NoArmError):
+    """The estimate is longer than the arm can be: something past its tip may have been taken for it."""
+
+
 @dataclass
 class _Side:
     """What one image contributes: ordered nodes and, in default mode, the refined curve."""
@@ -338,7 +342,22 @@ class CenterlineEstimator:
             if self.config.mode == "paper" or sides["left"].curve is None or sides["right"].curve is None:
                 points, uv_left_rect, uv_right_rect = self._reconstruct_nodes(sides, timings)
             else:
-                points, uv_left_rect, uv_right_rect = self._reconstruct_dense(sides, timings)
+                try:
+                    points, uv_left_rect, uv_right_rect = self._reconstruct_dense(sides, timings)
+                except _TooLongError as too_long:
+                    # Too long: an arm-coloured thing in line past the tip, across a gap, taken for
+                    # the arm's end (an orange box on a shelf). Without the silhouette's last piece in
+                    # both images the frame is judged again; where that fails, as first judged.
+                    trimmed = self._without_last_piece(sides)
+                    if trimmed is None:
+                        raise
+                    flags = self._flags[:]
+                    try:
+                        points, uv_left_rect, uv_right_rect = self._reconstruct_dense(trimmed, timings)
+                    except _NoArmError:
+                        self._flags = flags
+                        raise too_long from None
+                    sides = trimmed
             self._check_in_front(points)
         except _NoArmError as e:
             timings["total"] = (time.perf_counter() - start) * 1e3
@@ -995,6 +1014,48 @@ class CenterlineEstimator:
         ends = np.array([1.0])
         return float(np.linalg.norm(fit.points(ends)[0] - self._warm_fit.points(ends)[0]))
 
+    def _without_last_piece(self, sides: dict[str, _Side]) -> dict[str, _Side] | None:
+        """Both images' sides without the last piece of their silhouettes (the mask's part beyond the
+        centerline's last stretch off the mask, and the curve's points from that stretch on), their
+        edges measured again; None where an image has no such piece or too little is left."""
+        cfg = self.config
+        out = {}
+        for side in SIDES:
+            s = sides[side]
+            if s.curve is None or s.learn is None or s.image is None:
+                return None
+            mask = s.learn[2]
+            count, labels = cv2.connectedComponents(mask, connectivity=8)
+            local = np.round(s.curve.points - s.offset).astype(np.int64)
+            h, w = mask.shape
+            inside = (local[:, 0] >= 0) & (local[:, 1] >= 0) & (local[:, 0] < w) & (local[:, 1] < h)
+            label = np.zeros(len(local), np.int64)
+            label[inside] = labels[local[inside, 1], local[inside, 0]]
+            on = np.flatnonzero(label > 0)
+            if len(on) < 2:
+                return None
+            last = label[on[-1]]
+            before = on[label[on] != last]
+            if len(before) == 0:
+                return None
+            cut = int(before[-1]) + 1  # the first point past the last piece before the far one
+            if cut < 6 or not np.any(label[cut:on[-1]] == 0):
+                return None  # the far piece touches the rest (no gap): not a piece of its own
+            c = s.curve
+            curve = Centerline2D(c.points[:cut].copy(), c.valid[:cut].copy(), c.half_width_px[:cut].copy(),
+                                 c.arc_px[:cut].copy())
+            if np.count_nonzero(curve.valid) < 6:
+                return None
+            kept = np.where((labels > 0) & (labels != last), 255, 0).astype(np.uint8)
+            for label_id in np.unique(label[cut:]):
+                if label_id > 0:
+                    kept[labels == label_id] = 0
+            edges = _silhouette_edges(s.image, kept, curve, s.offset)
+            learn = (s.learn[0], s.learn[1], kept, s.learn[3])
+            out[side] = replace(s, nodes=resample_polyline(curve.points, cfg.n_points), curve=curve,
+                                area_px=int(np.count_nonzero(kept)), learn=learn, edges=edges)
+        return out
+
     def _check_single_tube(self, disparity: np.ndarray, weight: np.ndarray, left: Centerline2D) -> None:
         """Raise when the silhouette is too wide for one tube at its depth: two parts overlap.
 
@@ -1023,9 +1084,9 @@ class CenterlineEstimator:
             raise _NoArmError(f"only {length * 1e3:.0f} mm of the {cfg.arm_length_m * 1e3:.0f} mm arm is visible "
                               "(folded behind itself or out of view)")
         if length > cfg.max_length_fraction * cfg.arm_length_m:
-            raise _NoArmError(f"implausible estimate: {length * 1e3:.0f} mm long for a {cfg.arm_length_m * 1e3:.0f} mm "
-                              "arm (something past its tip taken for it, or left and right centerlines matched "
-                              "wrongly)")
+            raise _TooLongError(f"implausible estimate: {length * 1e3:.0f} mm long for a {cfg.arm_length_m * 1e3:.0f} "
+                                "mm arm (something past its tip taken for it, or left and right centerlines matched "
+                                "wrongly)")
 
     def _disparity_points(self, uv_left: np.ndarray, disparity: np.ndarray) -> np.ndarray:
         """(M, 3) rectified-frame points from left pixels and disparities (eqs. 7-8)."""
