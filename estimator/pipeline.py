@@ -1025,7 +1025,7 @@ class CenterlineEstimator:
             if s.curve is None or s.learn is None or s.image is None:
                 return None
             mask = s.learn[2]
-            count, labels = cv2.connectedComponents(mask, connectivity=8)
+            labels = cv2.connectedComponents(mask, connectivity=8)[1]
             local = np.round(s.curve.points - s.offset).astype(np.int64)
             h, w = mask.shape
             inside = (local[:, 0] >= 0) & (local[:, 1] >= 0) & (local[:, 0] < w) & (local[:, 1] < h)
@@ -1046,10 +1046,8 @@ class CenterlineEstimator:
                                  c.arc_px[:cut].copy())
             if np.count_nonzero(curve.valid) < 6:
                 return None
-            kept = np.where((labels > 0) & (labels != last), 255, 0).astype(np.uint8)
-            for label_id in np.unique(label[cut:]):
-                if label_id > 0:
-                    kept[labels == label_id] = 0
+            far = np.unique(label[cut:])  # the far piece, and anything else the dropped points touch
+            kept = np.where((labels > 0) & ~np.isin(labels, far), 255, 0).astype(np.uint8)
             edges = _silhouette_edges(s.image, kept, curve, s.offset)
             learn = (s.learn[0], s.learn[1], kept, s.learn[3])
             out[side] = replace(s, nodes=resample_polyline(curve.points, cfg.n_points), curve=curve,
@@ -1237,7 +1235,6 @@ def _connector_centres(image: np.ndarray, curve: Centerline2D, offset: np.ndarra
     flags = valid[support[0]:support[-1] + 1].astype(np.int8)
     starts = np.flatnonzero(np.diff(flags) == -1) + support[0]  # last supported point before each run
     stops = np.flatnonzero(np.diff(flags) == 1) + support[0] + 1  # first supported point after it
-    h, w = image.shape[:2]
     taken = list(zip(starts, stops, strict=True))
     for i, j in _dark_bands(image, curve, offset, width, int(support[0]), int(support[-1])) if bands else ():
         # where the mask's closing left the chords clean across a band
@@ -1249,15 +1246,11 @@ def _connector_centres(image: np.ndarray, curve: Centerline2D, offset: np.ndarra
     for i, j in zip(starts, stops, strict=True):
         if arc[j] - arc[i] > MAX_CONNECTOR_WIDTHS * width + width:  # plus the half widths kept clear each side
             continue
-        # the centerline from i to j, sampled every half pixel
         t = np.arange(arc[i], arc[j] + 1e-9, 0.5)
-        path = np.column_stack([np.interp(t, arc, curve.points[:, k]) for k in range(2)]) - offset
-        inside = (path[:, 0] >= 0) & (path[:, 1] >= 0) & (path[:, 0] <= w - 1) & (path[:, 1] <= h - 1)
-        if not inside.all():
+        row = _colours_along(image, curve, offset, t)
+        if row is None:
             continue
-        colour = cv2.remap(image, path[:, 0].astype(np.float32).reshape(1, -1),
-                           path[:, 1].astype(np.float32).reshape(1, -1), cv2.INTER_LINEAR).reshape(-1, 3)
-        colour = colour.astype(np.float64)
+        colour = row.reshape(-1, 3).astype(np.float64)
         ends = max(int(0.25 * width / 0.5), 2)
         arm = 0.5 * (colour[:ends].mean(axis=0) + colour[-ends:].mean(axis=0))
         dark = colour[np.argmax(np.linalg.norm(colour - arm, axis=1))]
@@ -1272,6 +1265,17 @@ def _connector_centres(image: np.ndarray, curve: Centerline2D, offset: np.ndarra
         at = float(np.sum(weight * t) / weight.sum())
         found.append([np.interp(at, arc, curve.points[:, 0]), np.interp(at, arc, curve.points[:, 1])])
     return np.array(found, np.float64).reshape(-1, 2)
+
+
+def _colours_along(image: np.ndarray, curve: Centerline2D, offset: np.ndarray, t: np.ndarray) -> np.ndarray | None:
+    """(1, N, 3) the image's colour (bilinear) at arc lengths ``t`` along the centerline, or None where
+    any of them falls outside the image."""
+    path = np.column_stack([np.interp(t, curve.arc_px, curve.points[:, k]) for k in range(2)]) - offset
+    h, w = image.shape[:2]
+    if np.any(path < 0) or np.any(path[:, 0] > w - 1) or np.any(path[:, 1] > h - 1):
+        return None
+    return cv2.remap(image, path[:, 0].astype(np.float32).reshape(1, -1), path[:, 1].astype(np.float32).reshape(1, -1),
+                     cv2.INTER_LINEAR)
 
 
 def _paired_views(views: list[np.ndarray], with_bands) -> np.ndarray | None:
@@ -1306,14 +1310,9 @@ def _dark_bands(image: np.ndarray, curve: Centerline2D, offset: np.ndarray, widt
     ``CONNECTOR_MIN_CONTRAST``, over at most ``MAX_CONNECTOR_WIDTHS`` widths."""
     arc = curve.arc_px
     t = np.arange(arc[first], arc[last] + 1e-9, 0.5)
-    if len(t) < 8 or width <= 0:
+    row = _colours_along(image, curve, offset, t) if len(t) >= 8 and width > 0 else None
+    if row is None:
         return []
-    path = np.column_stack([np.interp(t, arc, curve.points[:, k]) for k in range(2)]) - offset
-    h, w = image.shape[:2]
-    if np.any(path < 0) or np.any(path[:, 0] > w - 1) or np.any(path[:, 1] > h - 1):
-        return []
-    row = cv2.remap(image, path[:, 0].astype(np.float32).reshape(1, -1), path[:, 1].astype(np.float32).reshape(1, -1),
-                    cv2.INTER_LINEAR)
     colour = row.reshape(-1, 3).astype(np.float64)
     # A one-row image's square median is the running median along it, the ends repeated.
     local = cv2.medianBlur(row, 2 * int(2.0 * width / 0.5 / 2) + 1).reshape(-1, 3).astype(np.float64)
