@@ -434,8 +434,9 @@ class BenchConfig:
 
     def _twin_arm(self) -> dict[str, float]:
         """On the twin, the estimator is told the twin's arm (its config is all it knows of the geometry):
-        ``arm_length_m`` and ``arm_radius_m`` from the arm file the twin names, unless [estimator] sets
-        them; nothing on the rig. Read when first asked (a config for the rig need not find a twin).
+        ``arm_length_m``, ``arm_radius_m`` and the rest of ``_twin_tube`` from the arm file the twin
+        names, unless [estimator] sets them; nothing on the rig. Read when first asked (a config for the
+        rig need not find a twin).
 
         Raises:
             ConfigError: the twin file or its arm file is missing or bad; names this file and [sim] twin.
@@ -451,16 +452,17 @@ class BenchConfig:
 
 
 def _twin_tube(twin_toml: Path) -> dict:
-    """``arm_length_m`` and ``arm_radius_m`` of the arm the twin file names (``twin.params.tube_of``), and
-    where it has more than one section ``connector_radius_m`` (its baseplates') and
-    ``section_lengths_m`` (what its sections can reach, ``twin.params.section_length_ranges_m``)."""
+    """``arm_length_m`` and ``arm_radius_m`` of the arm the twin file names (``twin.params.tube_of``),
+    ``base_mount`` (the twin's arm hangs from its base mount), and where it has more than one section
+    ``connector_radius_m`` (its baseplates') and ``section_lengths_m`` (what its sections can reach,
+    ``twin.params.section_length_ranges_m``)."""
     from twin.params import ArmParams, section_length_ranges_m, tube_of, twin_arm_file
 
     arm = ArmParams.load(twin_arm_file(twin_toml))
     length, radius = tube_of(arm)
     joined = ({"connector_radius_m": arm.baseplate.radius_m, "section_lengths_m": section_length_ranges_m(arm)}
               if len(arm.sections) > 1 else {})
-    return {"arm_length_m": length, "arm_radius_m": radius, **joined}
+    return {"arm_length_m": length, "arm_radius_m": radius, "base_mount": True, **joined}
 
 
 # --- loading ------------------------------------------------------------------------------

@@ -111,6 +111,12 @@ class EstimatorConfig:
             section runs along the image rows its silhouette lines carry no disparity, the
             connector's band across it does. Their band is centred off the axis towards the camera,
             by an amount that depends on this radius. None: connectors are not used.
+        base_mount: the arm hangs from a mount wider than the tube, whose face hides the base's end:
+            the silhouette ends where the tube enters it, short of the end of the axis on the side
+            facing the camera. False: the base is a free end (a flat cap, as the tip is), and until
+            the default mode has learned where the base is, the base's outline in both images fixes
+            it as the tip's does. Taken for a mount, a free end was placed up to 6 mm too far along
+            the arm and, in a 9-11 px pan, up to 12 mm off in depth while the frame was valid.
         section_lengths_m: ((min, max), ...) for each section from the base, the range of its length
             in metres: from the mount's face to the first connector's middle, between connectors'
             middles, from the last one's middle to the tip (what the arm can reach, every actuator
@@ -192,6 +198,7 @@ class EstimatorConfig:
     arm_radius_m: float = 0.025
     arm_length_m: float | None = 0.685
     connector_radius_m: float | None = None
+    base_mount: bool = False
     section_lengths_m: tuple | None = None
     compensation: str | None = None
     smoothing_degree: int | None = None
@@ -280,7 +287,7 @@ class EstimatorConfig:
                    self.base_pixel)
             object.__setattr__(self, "base_pixel", (float(bp[0]), float(bp[1])))
         for name in ("roi", "medial_refinement", "extend_ends", "som_compiled", "som_shrink", "plausibility_checks",
-                     "tube_fit", "deblur"):
+                     "tube_fit", "deblur", "base_mount"):
             _check(isinstance(getattr(self, name), bool), name, "true or false", getattr(self, name))
 
     @classmethod

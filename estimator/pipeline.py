@@ -847,6 +847,10 @@ class CenterlineEstimator:
         side_ids, xy, chord, steps = [], [], [], []
         ends = {"base": np.full((2, 2), np.nan), "tip": np.full((2, 2), np.nan)}
         tip_outline: dict[int, np.ndarray] = {}
+        # A free base end (no mount: see EstimatorConfig.base_mount) is fitted to its outline, as the
+        # tip is, until where the base is has been learned.
+        outline_base = not cfg.base_mount and self._base.prior is None
+        base_outline: dict[int, np.ndarray] = {}
         connector_views: list[np.ndarray] = []
         for k, side in enumerate(SIDES):
             if sides[side].edges is None:
@@ -860,6 +864,8 @@ class CenterlineEstimator:
             ends["base"][k] = (base - centre) / f
             ends["tip"][k] = (tip - centre) / f
             tip_outline[k] = (outlines[1] - centre) / f
+            if outline_base:
+                base_outline[k] = (outlines[0] - centre) / f
         side_ids = np.concatenate(side_ids)
         edges = EdgeSet(side_ids, np.concatenate(xy), np.concatenate(chord), _edge_weights(np.concatenate(steps)))
         if self._radius is None:
@@ -879,7 +885,8 @@ class CenterlineEstimator:
         def fit_from(start, edges_):
             return fit_tube(edges_, ends, dense, self._radius, sigma, focal_px=f, baseline_m=self._rect.baseline_m,
                             base_prior=self._base.prior, initial_control=start, tip_outline=tip_outline,
-                            connectors=connectors, connector_radius_m=cfg.connector_radius_m or 0.0)
+                            connectors=connectors, connector_radius_m=cfg.connector_radius_m or 0.0,
+                            base_outline=base_outline)
 
         second = None
         if warm_control is None and self._warm_fit is not None and self._moving_fast:
@@ -892,7 +899,8 @@ class CenterlineEstimator:
                                 initial_control=self._warm_fit.control.copy(),
                                 tip_outline={k: v.copy() for k, v in tip_outline.items()},
                                 connectors=None if connectors is None else connectors.copy(),
-                                connector_radius_m=cfg.connector_radius_m or 0.0)
+                                connector_radius_m=cfg.connector_radius_m or 0.0,
+                                base_outline={k: v.copy() for k, v in base_outline.items()})
         fit = fit_from(warm_control, edges)
         moved = self._moved_from_last(fit)
         near = SECOND_START_MAX_WIDTHS * 2.0 * float(np.mean(self._radius))
@@ -923,26 +931,32 @@ class CenterlineEstimator:
             refit = fit_from(fit.control, kept)
             if refit is not None:
                 fit, edges = refit, kept
-        # An outline round the tip that the fitted end does not explain was not all the tube's (an
-        # arm-coloured cable touching the tip, an occluder lending it its edge): that image's tip
-        # observations are left out and the tube fitted again. A few rays that alone miss it by far
-        # met something else (``_outline_inliers``): only they are left out. Outline points are
-        # expected as sharp as the image's edges are: blur widens both.
+        # An outline round an end that the fitted end does not explain was not all the tube's (an
+        # arm-coloured cable touching the tip, an occluder lending it its edge): that image's
+        # observations of that end are left out and the tube fitted again. A few rays that alone
+        # miss it by far met something else (``_outline_inliers``): only they are left out. Outline
+        # points are expected as sharp as the image's edges are: blur widens both.
         unexplained, pruned = [], {}
-        for k, outline in tip_outline.items():
-            if len(outline) >= MIN_CAP_POINTS:
-                keep = _outline_inliers(fit.tip_residual_px.get(k), len(outline),
-                                        CAP_SIGMA_PX / np.median(_edge_weights(steps[k])))
-                if keep is None:
-                    unexplained.append(k)
-                elif not keep.all():
-                    pruned[k] = keep
+        for end, outlines_, residuals in (("tip", tip_outline, fit.tip_residual_px),
+                                          ("base", base_outline, fit.base_residual_px)):
+            for k, outline in outlines_.items():
+                if len(outline) >= MIN_CAP_POINTS:
+                    keep = _outline_inliers(residuals.get(k), len(outline),
+                                            CAP_SIGMA_PX / np.median(_edge_weights(steps[k])))
+                    if keep is None:
+                        unexplained.append((end, k))
+                    elif not keep.all():
+                        pruned[end, k] = keep
         if unexplained or pruned:
-            for k in unexplained:
-                del tip_outline[k]
-                ends["tip"][k] = np.nan
-            for k, keep in pruned.items():
-                tip_outline[k] = tip_outline[k][keep]
+            for end, k in unexplained:
+                if end == "tip":
+                    del tip_outline[k]
+                    ends["tip"][k] = np.nan
+                else:
+                    del base_outline[k]
+            for (end, k), keep in pruned.items():
+                outlines_ = tip_outline if end == "tip" else base_outline
+                outlines_[k] = outlines_[k][keep]
             refit = fit_from(warm_control, edges)
             if refit is not None:
                 fit = refit
@@ -971,6 +985,8 @@ class CenterlineEstimator:
             measured[-1] = True  # the tip itself was fitted to its outline in both images
         elif not all(tip_seen):
             measured[-1] = False  # an image saw no end of the tip
+        if sum(len(outline) >= MIN_CAP_POINTS for outline in base_outline.values()) == len(SIDES):
+            measured[0] = True  # so was a free base's end
         bridged = _longest_run(~measured, points)
         if bridged > cfg.max_bridge_widths * 2.0 * radius:
             raise _NoArmError(f"{bridged * 1e3:.0f} mm of the arm bridged without its edges in both images "

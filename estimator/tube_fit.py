@@ -119,6 +119,7 @@ class TubeFit:
     tip_residual_px: dict = field(default_factory=dict)
     cost: float = math.inf
     connector_u: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    base_residual_px: dict = field(default_factory=dict)
 
     def points(self, us: np.ndarray) -> np.ndarray:
         return evaluate_many(self.knots, self.control, np.asarray(us, np.float64))[0]
@@ -852,7 +853,7 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
              initial_control: np.ndarray | None = None,
              tip_outline: dict[int, np.ndarray] | None = None, initial_radii: np.ndarray | None = None,
              connectors: np.ndarray | None = None, connector_radius_m: float = 0.0, iterations: int = ITERATIONS,
-             _staged: bool = False) -> TubeFit | None:
+             base_outline: dict[int, np.ndarray] | None = None, _staged: bool = False) -> TubeFit | None:
     """Fit the tube to the edges of both images.
 
     Args:
@@ -886,7 +887,8 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
     Returns:
         The fit, or None when it cannot be set up (too few edges, degenerate initial curve).
     """
-    if not _staged and tip_outline and any(len(v) >= MIN_CAP_POINTS for v in tip_outline.values()):
+    outlines = {"tip": tip_outline or {}, "base": base_outline or {}}
+    if not _staged and any(len(v) >= MIN_CAP_POINTS for end in outlines.values() for v in end.values()):
         first = fit_tube(edges, ends, initial_points, radius_prior, radius_sigma, focal_px=focal_px,
                          baseline_m=baseline_m, cap=cap, control_points=control_points, base_prior=base_prior,
                          initial_control=initial_control, initial_radii=initial_radii, connectors=connectors,
@@ -895,10 +897,10 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
             return None
         return fit_tube(edges, ends, initial_points, radius_prior, radius_sigma, focal_px=focal_px,
                         baseline_m=baseline_m, cap=cap, control_points=control_points, base_prior=base_prior,
-                        initial_control=first.control, tip_outline={k: v for k, v in tip_outline.items()},
+                        initial_control=first.control, tip_outline=dict(outlines["tip"]),
                         initial_radii=first.radius_bins, connectors=connectors,
                         connector_radius_m=connector_radius_m, iterations=OUTLINE_ITERATIONS,
-                        _staged=True)
+                        base_outline=dict(outlines["base"]), _staged=True)
     if initial_control is not None:
         control = np.array(initial_control, np.float64)
         knots = clamped_knots(len(control))
@@ -917,11 +919,11 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
     xs, ys = [edges.xy[:, 0]], [edges.xy[:, 1]]
     sigmas = [EDGE_SIGMA_PX / np.maximum(edges.weight, 1e-3)]
     end_us, end_extra = [], []
-    tip_outline = tip_outline or {}
+    outlines = {"tip": tip_outline or {}, "base": base_outline or {}}
     for name, u_end, extra in (("base", 0.0, -cap), ("tip", 1.0, cap)):  # overshoot beyond each end
         for side in END_SIDES:
-            outline = tip_outline.get(side)
-            if name == "tip" and cap and outline is not None and len(outline) >= MIN_CAP_POINTS:
+            outline = outlines[name].get(side)
+            if cap and outline is not None and len(outline) >= MIN_CAP_POINTS:
                 # The whole outline of the flat end, not one point: its rim's ellipse seen from two
                 # places fixes where the tip is in depth too.
                 m = len(outline)
@@ -1039,11 +1041,15 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
     radius_std = np.sqrt(np.maximum(np.diag(covariance)[3 * count:], 0.0))
     at_tip = np.zeros(len(kinds), bool)
     at_tip[n_edges:n_edges + len(end_us)] = np.array(end_us) == 1.0
+    at_base = np.zeros(len(kinds), bool)
+    at_base[n_edges:n_edges + len(end_us)] = np.array(end_us) == 0.0
     tip_res = {int(side): residuals[at_tip & (sides == side)] for side in END_SIDES
                if np.any(at_tip & (sides == side))}
+    base_res = {int(side): residuals[at_base & (sides == side)] for side in END_SIDES
+                if np.any(at_base & (sides == side))}
     connector_u = attach_connectors(control)[::2]  # on the final axis (the fit may end between re-attachments)
     return TubeFit(knots, control, radii, radius_std, covariance, rms, inliers, us[:n_edges].copy(), edge_res,
-                   tip_res, cost, connector_u)
+                   tip_res, cost, connector_u, base_res)
 
 
 def silhouette_lines(fit: TubeFit, edges: EdgeSet, baseline_m: float) -> np.ndarray:

@@ -61,9 +61,10 @@ def test_the_reader_names_the_file_and_the_key_and_suggests_the_closest_key(tmp_
 
 def test_the_rig_config_holds_only_what_differs_from_bench_toml():
     data = tomllib.loads((MODELS / "bench_rig.toml").read_text())
-    # (the connectors' radius: on the twin the estimator reads it from the arm file, on the rig from here)
+    # (the connectors' radius, the mount: on the twin the estimator reads them from the arm file, on the
+    # rig from here)
     assert data == {"base": "bench.toml", "backend": "rig", "experiment": {"lead_in_s": 2.0},
-                    "estimator": {"connector_radius_m": 0.032,
+                    "estimator": {"connector_radius_m": 0.032, "base_mount": True,
                                   "section_lengths_m": [[0.148, 0.230], [0.231, 0.280], [0.223, 0.251]]}}
     sim, rig = load_bench_config(), load_bench_config(MODELS / "bench_rig.toml")
     assert rig.rig == sim.rig and rig.recording == sim.recording and rig.report == sim.report
@@ -269,8 +270,10 @@ def test_on_the_twin_the_estimator_is_told_the_twins_arm(tmp_path):
     shipped = load_bench_config().estimator_config()
     assert (shipped.arm_length_m, round(shipped.arm_radius_m, 4)) == (0.685, 0.0243)
     assert shipped.connector_radius_m == 0.032  # its baseplates, stereo features between sections
+    assert shipped.base_mount  # it hangs from its base mount
     rig = load_bench_config(MODELS / "bench_rig.toml").estimator_config()
     assert rig.arm_radius_m == 0.025 and rig.connector_radius_m == 0.032  # the rig file's own [estimator]
+    assert rig.base_mount
     assert load_bench_config(bench).estimator_config().connector_radius_m == 0.032
     # what each section can reach, from the arm file's physics; the rig file's ranges hold the twin's
     twin_ranges = np.array(shipped.section_lengths_m)

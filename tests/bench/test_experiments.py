@@ -90,9 +90,10 @@ def test_rig_config_runs_the_same_experiment_on_the_rig():
     assert rig.backend == "rig" and rig.rig is not None
     assert dataclasses.replace(rig.experiment, lead_in_s=0.0) == sim.experiment
     # the same estimator, told on the rig what the twin's arm file tells it on the twin (the connectors'
-    # radius, what the sections can reach: rounded outwards)
+    # radius, that the arm hangs from a mount, what the sections can reach: rounded outwards)
     told = sim.estimator_config()
     assert dict(rig.estimator) == {**sim.estimator, "connector_radius_m": told.connector_radius_m,
+                                   "base_mount": told.base_mount,
                                    "section_lengths_m": rig.estimator["section_lengths_m"]}
     assert np.allclose(rig.estimator["section_lengths_m"], told.section_lengths_m, atol=0.0011)
     assert rig.rig.valves == sim.rig.valves
