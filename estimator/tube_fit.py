@@ -414,10 +414,15 @@ def _cap_piece(C, D, r, x, y, piece):
 
 
 @numba.njit(cache=True, nogil=True)
-def _cap_residual_piece(C, D, r, x, y):
+def _cap_residual_piece(C, D, r, x, y, outward=1.0):
     """Distance (normalised units) from (x, y) to the outline of the tube's flat end: the nearer of
     its two silhouette lines and the image of the end's rim (a circle of radius r across the axis);
-    and which piece of the outline that is (``_cap_piece``: its derivatives are that piece's)."""
+    and which piece of the outline that is (``_cap_piece``: its derivatives are that piece's).
+
+    The silhouette lines end at the cap: a point beyond the image of the axis's end (``outward``: +1
+    where the axis runs out through this end as u grows, the tip; -1 at the base) can only be on the
+    rim. Taken as infinite lines, they explained the far arc of a tip whose face was seen, and the
+    fit ended the tube 13 mm short with its outline fitted to 0.5 px (tests/scenes.py, dim light)."""
     best = abs(_edge_residual(C, D, r, x, y, 1.0))
     piece = SIDE_PIECE
     other = abs(_edge_residual(C, D, r, x, y, -1.0))
@@ -426,8 +431,13 @@ def _cap_residual_piece(C, D, r, x, y):
     if other < best:
         best, piece = other, SIDE_PIECE - 1
     tn = math.sqrt(D[0] * D[0] + D[1] * D[1] + D[2] * D[2])
-    if tn < 1e-12:
+    if tn < 1e-12 or C[2] <= 1e-6:
         return np.nan, piece
+    # the image of the axis's direction at the end, pointing out of the tube
+    tx = (D[0] * C[2] - C[0] * D[2]) * outward
+    ty = (D[1] * C[2] - C[1] * D[2]) * outward
+    if (x - C[0] / C[2]) * tx + (y - C[1] / C[2]) * ty > 0.0:
+        best, piece = np.inf, 0  # beyond the end: the rim's (found below)
     T = (D[0] / tn, D[1] / tn, D[2] / tn)  # a tuple: no allocation in the fit's inner loop
     px, py = _rim_point(C, T, r, 0)
     if px != px:
@@ -454,7 +464,7 @@ def _residual_of(kind, C, D, r, x, y, extra):
     if kind == 0:
         return _edge_residual(C, D, r, x, y, extra)
     if kind == 2:
-        return _cap_residual_piece(C, D, r, x, y)[0]
+        return _cap_residual_piece(C, D, r, x, y, extra)[0]
     return _end_residual(C, D, r, x, y, extra)
 
 
@@ -525,7 +535,7 @@ def _normal_equations(bases, control, radii, bins, baseline, focal, kinds, sides
         if kinds[i] == 3:
             res = _connector_pair_residual(C, D, r, xs[i], ys[i], xs[i + 1], ys[i + 1], extras[i], baseline)
         elif kinds[i] == 2:
-            res, piece = _cap_residual_piece(C, D, r, xs[i], ys[i])
+            res, piece = _cap_residual_piece(C, D, r, xs[i], ys[i], extras[i])
         elif kinds[i] == 0 and want_system:  # an edge's residual comes with its partials
             res, gr = _edge_residual_gradient(C, D, r, xs[i], ys[i], extras[i], gC, gD)
         else:
@@ -933,7 +943,7 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
                 ys.append(outline[:, 1])
                 sigmas.append(np.full(m, CAP_SIGMA_PX))
                 end_us += [u_end] * m
-                end_extra += [0.0] * m
+                end_extra += [1.0 if name == "tip" else -1.0] * m  # which way is out of the tube
                 continue
             point = ends[name][side]
             if np.all(np.isfinite(point)):

@@ -153,18 +153,38 @@ def test_edge_residual_gradient_matches_central_differences():
     assert checked == 300
 
 
-def test_cap_residual_is_its_nearest_piece():
-    """The tip outline's residual is the distance to the nearest of its pieces (two silhouette lines,
-    the rim's segments), and the piece it names gives that distance again (its derivatives are that
-    piece's)."""
+def _beyond_the_end(C, D, x, y, outward):
+    """Whether the image point lies beyond the image of the axis's end, out of the tube."""
+    tangent = np.array([D[0] * C[2] - C[0] * D[2], D[1] * C[2] - C[1] * D[2]]) * outward
+    return float((np.array([x, y]) - C[:2] / C[2]) @ tangent) > 0.0
+
+
+@pytest.mark.parametrize("outward", [1.0, -1.0])
+def test_cap_residual_is_its_nearest_piece(outward):
+    """An end's outline residual is the distance to the nearest of its pieces (two silhouette lines,
+    the rim's segments; beyond the end, the rim's alone), and the piece it names gives that distance
+    again (its derivatives are that piece's)."""
     rng = np.random.default_rng(4)
     C, D, r = np.array([0.05, 0.02, 0.9]), np.array([0.8, 0.3, -0.2]), 0.02
     for _ in range(100):
         x, y = C[0] / C[2] + rng.normal(0.0, 0.03), C[1] / C[2] + rng.normal(0.0, 0.03)
-        best, piece = _cap_residual_piece(C, D, r, x, y)
-        pieces = [_cap_piece(C, D, r, x, y, k) for k in (SIDE_PIECE, SIDE_PIECE - 1, *range(CAP_SAMPLES))]
+        best, piece = _cap_residual_piece(C, D, r, x, y, outward)
+        sides = () if _beyond_the_end(C, D, x, y, outward) else (SIDE_PIECE, SIDE_PIECE - 1)
+        pieces = [_cap_piece(C, D, r, x, y, k) for k in (*sides, *range(CAP_SAMPLES))]
         assert best == pytest.approx(min(pieces), abs=1e-15)
         assert _cap_piece(C, D, r, x, y, piece) == pytest.approx(best, abs=1e-15)
+
+
+@pytest.mark.parametrize("outward", [1.0, -1.0])
+def test_a_silhouette_line_does_not_run_on_past_the_end(outward):
+    """A point on a silhouette line's continuation beyond the end is as far off as the rim is from it:
+    taken as on the line, the far arc of a cap seen face-on ended a tube 13 mm short."""
+    C, D, r = np.array([0.05, 0.02, 0.9]), np.array([0.0, 1.0, 0.0]), 0.02  # the axis runs down the image
+    side_x = (C[0] + r) / C[2]  # a silhouette line, seen square on
+    inside, beyond = C[1] / C[2] - 0.03 * outward, C[1] / C[2] + 0.03 * outward
+    assert _cap_residual_piece(C, D, r, side_x, inside, outward)[0] == pytest.approx(0.0, abs=1e-4)
+    far, piece = _cap_residual_piece(C, D, r, side_x, beyond, outward)
+    assert piece >= 0 and far > 0.02  # the rim's, over a third of the tube's width away
 
 
 def test_fit_recovers_axis_and_radius_from_a_rough_start(bent_tube):
