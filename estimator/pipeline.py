@@ -949,11 +949,8 @@ class CenterlineEstimator:
                         pruned[end, k] = keep
         if unexplained or pruned:
             for end, k in unexplained:
-                if end == "tip":
-                    del tip_outline[k]
-                    ends["tip"][k] = np.nan
-                else:
-                    del base_outline[k]
+                del (tip_outline if end == "tip" else base_outline)[k]
+                ends[end][k] = np.nan
             for (end, k), keep in pruned.items():
                 outlines_ = tip_outline if end == "tip" else base_outline
                 outlines_[k] = outlines_[k][keep]

@@ -101,6 +101,7 @@ class TubeFit:
         edge_residual_px: (K,) each edge's final residual.
         tip_residual_px: image (0 left, 1 right) -> the final residuals of what located the tip in
             that image: its outline's points, or its single end point (absent where unseen).
+        base_residual_px: the same for the base.
         cost: the final robust cost (residuals and priors): of two fits to the same observations
             from different starts, the lower one is the better.
         connector_u: (C,) where each connector pair the fit was given lies on the final axis, in
@@ -887,6 +888,7 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
             in a second stage, started from the fit with the end point (an outline is attributed to
             the nearest of the rim and the sides: from a tip far off, to the wrong one).
         initial_radii: radii to start from (default: the prior).
+        base_outline: the same for the base, where it is a free end (not a mount's face).
         connectors: (K, 2, 2) the centres of the bands the connectors between sections make along
             the tube's image, in the left (``[:, 0]``) and the right (``[:, 1]``) image (normalised),
             base first: one place on the axis each, seen from both cameras, so they give its
@@ -929,7 +931,6 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
     xs, ys = [edges.xy[:, 0]], [edges.xy[:, 1]]
     sigmas = [EDGE_SIGMA_PX / np.maximum(edges.weight, 1e-3)]
     end_us, end_extra = [], []
-    outlines = {"tip": tip_outline or {}, "base": base_outline or {}}
     for name, u_end, extra in (("base", 0.0, -cap), ("tip", 1.0, cap)):  # overshoot beyond each end
         for side in END_SIDES:
             outline = outlines[name].get(side)
