@@ -35,6 +35,8 @@ GAP_WIDTHS = 3.0  # pieces of one tube are at most this many widths apart (basep
 # on the twin's sequences), while from the tip to a shelf or a rod beside it the walk jumped 1.6
 # widths aside (median) and went on along it.
 SIDEWAYS_WIDTHS = 1.0
+LENGTHS_AGREE = 0.8  # a stereo pair's traces this close in length both went as far (``_fullest_match``)
+COVERED = 0.9  # share of a trace's path another must run over to extend it (``_fullest_match``)
 
 
 def corridor(shape: tuple[int, int], curve_px: np.ndarray, half_width_px: float) -> np.ndarray:
@@ -188,7 +190,9 @@ def trace_tubes(mask: np.ndarray, base_hint: tuple[float, float] | None, min_are
         key = [float(np.linalg.norm(points[branches[bi][0 if first else -1]] - np.asarray(base_hint)))
                for bi, first in ends]
     traces = []
-    for index in np.argsort(key, kind="stable")[:MAX_STARTS]:
+    order = np.argsort(key, kind="stable")
+    # ... and the end furthest from it: the walk from the tip crosses gaps the walk from the base stops at
+    for index in order[:MAX_STARTS] if len(order) <= MAX_STARTS else np.append(order[:MAX_STARTS], order[-1]):
         trace = _trace(points, adjacency, branches, distance, ends[index])
         if trace.tube_like and trace.half_width * trace.length * 2.0 >= min_area_px:
             traces.append(trace)
@@ -207,6 +211,37 @@ def _stereo_match(left: Trace, right: Trace, geometry: TubeGeometry) -> bool:
     ratio = (left.half_width + right.half_width) / geometry.width_at(disparity)
     length_ratio = right.length / max(left.length, 1e-9)
     return WIDTH_AT_DEPTH[0] <= ratio <= WIDTH_AT_DEPTH[1] and 0.5 <= length_ratio <= 2.0
+
+
+def _covers(trace: Trace, other: Trace, shape: tuple[int, int]) -> bool:
+    """Whether ``trace`` runs over all of ``other`` (every point of its path within the tube's reach)."""
+    reach = corridor(shape, trace.path, 1.3 * trace.half_width + 1.0)
+    u, v = np.round(other.path).astype(int).T
+    inside = (u >= 0) & (v >= 0) & (u < shape[1]) & (v < shape[0])
+    return bool(inside.all()) and float(np.mean(reach[v, u] > 0)) >= COVERED
+
+
+def _fullest_match(left: Trace, right: Trace, lefts: list[Trace], rights: list[Trace], geometry: TubeGeometry,
+                   shape: tuple[int, int]) -> tuple[Trace, Trace]:
+    """Where the first match's traces (``left``, ``right``: the tube reached from its base end) differ
+    in length, the stereo pair that runs over them and whose shorter trace is the longest. A walk may
+    stop at a gap that the walk from the tip's end crosses (a slanted connector, wide where the arm
+    comes towards the camera, past which the far section is wider and turned), so one image's trace
+    ends there and the other's does not. Where both end at the same place (a box touching the tip:
+    both walks stop at it), a walk from the box's far end would take the box as well, and the first
+    match stays."""
+    best, best_length = (left, right), min(left.length, right.length)
+    if best_length >= LENGTHS_AGREE * max(left.length, right.length):
+        return best  # both walks went as far: nothing stopped one of them short
+    for other_left in lefts:
+        if other_left is not left and not _covers(other_left, left, shape):
+            continue
+        for other_right in rights:
+            length = min(other_left.length, other_right.length)
+            if (length > best_length and (other_right is right or _covers(other_right, right, shape))
+                    and _stereo_match(other_left, other_right, geometry)):
+                best, best_length = (other_left, other_right), length
+    return best
 
 
 def find_tube(masks: dict[str, np.ndarray], geometry: TubeGeometry,
@@ -228,6 +263,7 @@ def find_tube(masks: dict[str, np.ndarray], geometry: TubeGeometry,
     for left in lefts:
         for right in rights:
             if _stereo_match(left, right, geometry):
+                left, right = _fullest_match(left, right, lefts, rights, geometry, masks["left"].shape)
                 return {"left": left.mask(masks["left"]), "right": right.mask(masks["right"])}, ""
             same_row = abs(left.path[0][1] - right.path[0][1]) <= max(2.0 * left.half_width, 3.0)
             shift = left.path[0][0] - right.path[0][0]  # the disparity of the tubes' first points
