@@ -59,8 +59,13 @@ def _along(points: np.ndarray, fraction: float) -> np.ndarray:
     return np.array([np.interp(fraction * arc[-1], arc, points[:, k]) for k in range(3)])
 
 
-def _sequence(seed: int, frames: int) -> dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
-    """One random arm bending over ``frames`` frames in every condition: condition -> [(left, right, truth)]."""
+def _sequence(seed: int, frames: int, upto: int | None = None,
+              through: str = CONDITIONS[-1]) -> dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
+    """One random arm bending over ``frames`` frames in every condition: condition -> [(left, right, truth)].
+
+    ``upto`` (a frame) and ``through`` (a condition) draw only the frames and conditions up to them, the
+    same as in the whole sequence (every random draw is made, in order; a test draws one frame of one
+    condition without the rest)."""
     sc = _scenes()
     rng = np.random.default_rng(5000 + seed)
     curvature = rng.uniform(0.5, 5.0, 3)
@@ -73,8 +78,9 @@ def _sequence(seed: int, frames: int) -> dict[str, list[tuple[np.ndarray, np.nda
     cable_at, cable_width, cable_slope = rng.uniform(0.15, 0.85), rng.uniform(0.008, 0.025), rng.uniform(-0.3, 0.3)
     hand_at = rng.uniform(0.2, 0.8)
     calib = sc.zed_like_calibration()
-    out: dict[str, list] = {c: [] for c in CONDITIONS}
-    for f in range(frames):
+    names = CONDITIONS[:CONDITIONS.index(through) + 1]
+    out: dict[str, list] = {c: [] for c in names}
+    for f in range(frames if upto is None else upto + 1):
         bend = f / max(frames - 1, 1)
         sections = [sc.Section(SECTIONS_M[i], curvature[i] * bend, planes[i], twist * (i == 2)) for i in range(3)]
         points, joints = sc.backbone(sections, base, tilt_rad=tilt)
@@ -94,9 +100,10 @@ def _sequence(seed: int, frames: int) -> dict[str, list[tuple[np.ndarray, np.nda
                       "occluded": sc.Lab(extra=(cable,))}
         if f >= HAND_FROM:
             conditions["hand"] = sc.Lab(extra=(hand,))
+        conditions = {name: lab for name, lab in conditions.items() if name in names}  # each keeps its seed
         rendered = sc.render_lab_scenes(calib, points, joints, conditions=conditions, seed=seed * 100 + f)
         rendered.setdefault("hand", rendered["lab"])
-        for name in CONDITIONS:
+        for name in names:
             out[name].append((rendered[name].left, rendered[name].right, points))
     return out
 

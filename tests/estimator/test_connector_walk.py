@@ -37,6 +37,21 @@ def test_the_fullest_pair_over_the_first_match_is_taken():
     assert left is left_up and right is right_up
 
 
+def test_a_fuller_pair_that_widens_beyond_the_first_match_is_not_taken():
+    left, right = _vertical(200.0, 10.0, 70.0), _vertical(160.0, 10.0, 70.0)
+    # walked from the far end of a box the arm's tip rests against: as wide as three tubes beyond the arm
+    halves = np.where(np.arange(10.0, 131.0) > 75.0, 15.0, 5.0)[::-1]
+    box_left = Trace(_vertical(200.0, 130.0, 10.0).path, 5.0, 1.0, halves)
+    box_right = Trace(_vertical(160.0, 130.0, 10.0).path, 5.0, 1.0, halves)
+    assert _fullest_match(left, right, [left, box_left], [right, box_right], GEOMETRY, SHAPE) == (left, right)
+    # the same walk where the tube beyond is drawn 1.5 times wider (nearer the camera): taken
+    nearer = np.where(np.arange(10.0, 131.0) > 75.0, 7.5, 5.0)[::-1]
+    near_left = Trace(box_left.path, 5.0, 1.0, nearer)
+    near_right = Trace(box_right.path, 5.0, 1.0, nearer)
+    assert _fullest_match(left, right, [left, near_left], [right, near_right], GEOMETRY, SHAPE) == (near_left,
+                                                                                                    near_right)
+
+
 def test_without_a_fuller_pair_the_first_match_stays():
     left, right = _vertical(200.0, 10.0, 130.0), _vertical(160.0, 10.0, 130.0)
     cable_left, cable_right = _vertical(60.0, 5.0, 170.0, half=4.0), _vertical(20.0, 5.0, 170.0, half=4.0)

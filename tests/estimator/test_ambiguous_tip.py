@@ -1,0 +1,29 @@
+"""Two starts of the tube fit that end about equally well with their tips far apart: the tip is refused.
+
+In a 5-13 px pan an arm's tip pointing at the camera came back valid 24 mm off: started from the disparity
+profile, the fit ended with the tip 20 mm short along the arm; started from the last frame's tube, 1.2 mm
+off, at a cost only 5 higher. Where the two starts end within ``AMBIGUOUS_COST`` of each other with
+their tips more than ``AMBIGUOUS_TIP_M`` apart, the images do not say where the tip ends: the frame is
+refused and tracked on. The scene is drawn by ``tests.scenes`` (benchmarks/unseen_scenes.py, seed 11,
+blur, frames 0-10), not the twin (``tests.unseen_draws``).
+"""
+
+from __future__ import annotations
+
+from estimator import CenterlineEstimator
+from estimator.metrics import score_against_backbone
+from tests.unseen_draws import unseen_calibration, unseen_frames
+
+
+def test_a_tip_two_equally_good_fits_put_far_apart_is_refused_and_tracked_on():
+    estimator = CenterlineEstimator(unseen_calibration())
+    results = [(estimator.estimate(left, right), truth) for left, right, truth in unseen_frames(11, "blur", 10)]
+    last, _ = results[-1]
+    assert not last.valid  # before: valid, the tip 24 mm off
+    assert "about as well with its tip" in last.reason
+    assert estimator._warm_fit is not None  # tracked on
+    for result, truth in results[:-1]:
+        if result.valid:
+            score = score_against_backbone(result.points, truth)
+            assert max(score["max_mm"], score["tip_mm"]) <= 10.0
+    assert sum(result.valid for result, _ in results[:-1]) >= 9  # measured: 10 of 10
