@@ -244,14 +244,13 @@ def _fullest_match(left: Trace, right: Trace, lefts: list[Trace], rights: list[T
     the arm comes towards the camera, past which the far section is drawn wider and turned. One
     image's trace then ended there and the other's did not (refused as a length mismatch), or both did
     (refused as too short)."""
+    over_left = [t for t in lefts if t is left or _covers(t, left, shape)]
+    over_right = [t for t in rights if t is right or _covers(t, right, shape)]
     best, best_length = (left, right), min(left.length, right.length)
-    for other_left in lefts:
-        if other_left is not left and not _covers(other_left, left, shape):
-            continue
-        for other_right in rights:
+    for other_left in over_left:
+        for other_right in over_right:
             length = min(other_left.length, other_right.length)
-            if (length > best_length and (other_right is right or _covers(other_right, right, shape))
-                    and _stereo_match(other_left, other_right, geometry)):
+            if length > best_length and _stereo_match(other_left, other_right, geometry):
                 best, best_length = (other_left, other_right), length
     return best
 
