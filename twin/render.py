@@ -19,12 +19,10 @@ OpenGL in BGR order (the lights are white, so channels never mix) and the images
 
 from __future__ import annotations
 
-import atexit
 import functools
+import importlib.resources
 import math
 import os
-import shutil
-import tempfile
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -57,60 +55,20 @@ _DIELECTRIC_F0 = 0.04  # pyrender's own PBR shader: diffuse colour = base * (1 -
 # so shading only scales a colour and hue and saturation stay exactly those of the material
 # (the estimator segments by HSV); it also halves the per-eye time on a CPU rasteriser.
 # Uniform and input names are pyrender's (mesh.vert feeds it; unused uniforms are skipped).
-_MATTE_FRAG = """#version 330 core
-struct DirectionalLight { vec3 color; float intensity; vec3 direction; };
-struct Material {
-    vec3 emissive_factor; vec4 base_color_factor; float metallic_factor; float roughness_factor;
-#ifdef HAS_BASE_COLOR_TEX
-    sampler2D base_color_texture;
-#endif
-};
-uniform Material material;
-uniform DirectionalLight directional_lights[MAX_DIRECTIONAL_LIGHTS];
-uniform int n_directional_lights;
-uniform vec3 ambient_light;
-in vec3 frag_position;
-#ifdef NORMAL_LOC
-in vec3 frag_normal;
-#endif
-#ifdef TEXCOORD_0_LOC
-in vec2 uv_0;
-#endif
-out vec4 frag_color;
-void main()
-{
-    vec3 light = ambient_light;
-#ifdef NORMAL_LOC
-    vec3 n = normalize(frag_normal);
-    for (int i = 0; i < n_directional_lights; i++) {
-        float nl = max(dot(n, -normalize(directional_lights[i].direction)), 0.0);
-        light += directional_lights[i].color * directional_lights[i].intensity * nl;
-    }
-#endif
-    vec3 base = material.base_color_factor.rgb;
-#ifdef HAS_BASE_COLOR_TEX
-#ifdef TEXCOORD_0_LOC
-    base *= pow(texture(material.base_color_texture, uv_0).rgb, vec3(2.2));  // display -> linear
-#endif
-#endif
-    vec3 colour = clamp(base * light, 0.0, 1.0);
-    frag_color = vec4(pow(colour, vec3(1.0 / 2.2)), 1.0);
-}
-"""
-_matte_path: str | None = None
+# The shader ships beside this module (package data): pyrender reads shaders from files, and a
+# file written to a temporary folder per process outlived every worker process, whose exit skips
+# ``atexit`` (27 folders left in /tmp by one day's studies).
+_MATTE_SHADER = "matte.frag"
 
 
+@functools.cache
 def _matte_shader_file() -> str:
-    """pyrender compiles shaders from files: write the matte shader once per process."""
-    global _matte_path
-    if _matte_path is None or not os.path.exists(_matte_path):
-        folder = tempfile.mkdtemp(prefix="softarm-twin-shaders-")
-        atexit.register(shutil.rmtree, folder, True)
-        path = os.path.join(folder, "matte.frag")
-        with open(path, "w") as f:
-            f.write(_MATTE_FRAG)
-        _matte_path = path
-    return _matte_path
+    """The matte fragment shader's path in the installed package."""
+    path = importlib.resources.files("twin") / _MATTE_SHADER
+    if not path.is_file():
+        raise FileNotFoundError(f"the twin's matte shader {_MATTE_SHADER} is missing from the installed package "
+                                f"(looked in {path}): reinstall softarm-twin")
+    return str(path)
 
 
 def _matte_program_cache(pyrender):
@@ -383,7 +341,7 @@ class StereoRenderer:
         _keep_egl_display(self._renderer._platform)
         if hasattr(self._renderer._renderer, "_sorted_mesh_nodes"):
             self._renderer._renderer._sorted_mesh_nodes = _drawing_order
-        # Linear light = base * (ambient + directional * cos); see _MATTE_FRAG.
+        # Linear light = base * (ambient + directional * cos); see twin/matte.frag.
         if hasattr(self._renderer._renderer, "_program_cache"):
             self._renderer._renderer._program_cache = _matte_program_cache(pyrender)
         else:  # pyrender's PBR shader: its Lambert term is radiance * 0.96 * cos / pi

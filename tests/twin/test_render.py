@@ -358,3 +358,26 @@ def test_a_missing_egl_stack_names_the_packages_to_install():
     result = subprocess.run([sys.executable, "-c", script], cwd=REPO, capture_output=True, text=True, timeout=120)
     assert "RenderBackendError:" in result.stdout, result.stdout + result.stderr
     assert "libegl1" in result.stdout and "libgl1-mesa-dri" in result.stdout
+
+
+def test_the_matte_shader_ships_with_the_package_and_rendering_writes_no_temporary_folder(rig, tmp_path,
+                                                                                         monkeypatch):
+    """pyrender reads shaders from files. Written to a temporary folder per process, the shader outlived
+    every worker process of a study (their exit skips ``atexit``): 27 folders left in /tmp in one day.
+    It is package data now, and the wheel is told to ship it."""
+    import tempfile
+    import tomllib
+    from importlib.resources import files
+
+    from twin import render
+
+    project = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
+    assert "*.frag" in project["package-data"]["twin"]
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # any folder made through tempfile lands here
+    render._matte_shader_file.cache_clear()  # as in a fresh worker process
+    with StereoRenderer(rig, seed=1) as fresh:
+        images = fresh.render(hanging())
+    assert images.left.std() > 5 and images.right.std() > 5  # the arm was drawn with the shader
+    shader = Path(render._matte_shader_file())
+    assert shader == Path(str(files("twin") / "matte.frag")) and shader.read_text().startswith("#version 330")
+    assert list(tmp_path.iterdir()) == []
