@@ -22,6 +22,23 @@ H_BINS = 180  # one bin per OpenCV hue unit
 DECAY = 0.8  # weight of the past at each update (about five trusted frames of memory)
 MIN_KEEP = 0.97  # an update must keep at least this share of the arm's pixels it learned from
 DOMINANCE = 2.0  # a colour is dropped where the background has this many times the arm's count
+# The gate's value floor follows the light on the arm. Its side away from the light is lit by the
+# ambient light alone: in the independent dim scenes (benchmarks/unseen_scenes.py) its value was 46-56
+# against 80 on the lit side, still at saturation 230 against the wall's 50, and the configured floor
+# (50) cut it off: the silhouette lost a strip along that side, its chords were ragged, and whole
+# sections had no edge. Half the lit side's value (its 90th percentile) keeps that side in.
+SHADE_FRACTION = 0.5
+MIN_VALUE_FLOOR = 25  # darker than this, sensor noise decides a pixel's hue and saturation
+
+
+def value_floor(arm_values: np.ndarray, configured: int) -> int:
+    """The colour gate's value floor for an arm whose pixels have these values (HSV V, 0-255): the
+    configured floor, lowered in dim light to ``SHADE_FRACTION`` of the arm's lit side (never below
+    ``MIN_VALUE_FLOOR``, never above the configured floor)."""
+    if len(arm_values) == 0:
+        return int(configured)
+    lit = float(np.percentile(arm_values, 90))
+    return int(np.clip(SHADE_FRACTION * lit, min(MIN_VALUE_FLOOR, configured), configured))
 
 
 class ArmColourModel:

@@ -27,7 +27,7 @@ import numpy as np
 from estimator.arm_region import TubeGeometry, find_tube, keep_in_corridor, saturation_split
 from estimator.calibration import StereoCalibration
 from estimator.centerline import centerline_nodes
-from estimator.colour_model import ArmColourModel
+from estimator.colour_model import ArmColourModel, value_floor
 from estimator.config import EstimatorConfig
 from estimator.correspondence import MIN_SINE, compensate_nodes, match_rows
 from estimator.deblur import LinearBlur, blur_from_steps, deblur
@@ -128,6 +128,10 @@ MAX_TIP_MISFIT_PX = 0.75
 # valid 24 mm off: the other start's tip was 1.2 mm off), the other with the arm moved too far for it.
 AMBIGUOUS_COST = 6.0
 AMBIGUOUS_TIP_M = 0.015
+MIN_FLOOR_PIXELS = 100  # an image's arm with fewer mask pixels does not set the gate's value floor
+MATCHED_WEIGHT = 0.05  # a row-matched point of the left curve weighs more than this in the disparity profile
+MIN_MATCHED_TIP_SHARE = 0.5  # under this share of the arm's last third matched, the tip's depth is a guess
+TIP_START_SHIFT_WIDTHS = 1.0  # see _tip_depth_ambiguity
 # Starting the fit from the previous frame's tube saves the disparity profile but measured worse
 # (2.8 against 2.2 mm on a late-ramp stretch of the twin): the profile starts it better.
 WARM_START_TUBE = False
@@ -258,7 +262,7 @@ class CenterlineEstimator:
             self._base_hint = self._rect.rectify_points(np.array([self.config.base_pixel]), "left")[0]
         self._warm: dict[str, np.ndarray | None] = {side: None for side in SIDES}
         self._track: dict[str, tuple[float, int]] = {}  # side -> (width, area) of the arm in the coarse mask
-        self._gate_low = tuple(self.config.hsv_low)  # the colour gate's lower bound (saturation may adapt)
+        self._gate_low = tuple(self.config.hsv_low)  # the colour gate's lower bound (saturation and value adapt)
         self._colour = ArmColourModel()
         self._updates = 0  # frames the colour model has been offered (it learns from every one of the first ten)
         self._radius: np.ndarray | None = None  # the tube's radius profile, learned over frames
@@ -682,11 +686,14 @@ class CenterlineEstimator:
 
         The arm's samples are its mask's pixels within its half width of the centerline: edge pixels
         included (blurred or shadowed edges mix the arm's colour with the background's and must stay
-        the arm's), a distractor bulging out of the silhouette excluded.
+        the arm's), a distractor bulging out of the silhouette excluded. The gate's value floor is
+        set from the same frame (``colour_model.value_floor``): in dim light the arm's shaded side
+        falls under the configured one.
         """
         self._updates += 1
         if self._updates > 10 and self._updates % 5:  # learn every frame at first, then every fifth
             return
+        floors = []
         for side in SIDES:
             s = sides[side]
             if s.learn is None or s.curve is None:
@@ -696,6 +703,11 @@ class CenterlineEstimator:
             interior = cv2.bitwise_and(mask, _corridor_mask(mask.shape, curve, 0.5 * s.width_px))
             near = _corridor_mask(mask.shape, curve, 2.0 * s.width_px)
             self._colour.update(hsv, gate, interior, cv2.bitwise_not(near))
+            values = hsv[..., 2][mask > 0]
+            if len(values) > MIN_FLOOR_PIXELS:
+                floors.append(value_floor(values, self.config.hsv_low[2]))
+        if floors:
+            self._gate_low = (self._gate_low[0], self._gate_low[1], min(floors))
 
     def _keep_tracked_side(self, side: str, gate: np.ndarray, min_area: int) -> np.ndarray | None:
         """The arm's coarse pixels near the previous frame's centerline in one image (regions of the
@@ -810,9 +822,13 @@ class CenterlineEstimator:
             disparity, weight = match_rows(left.points, right.points, right_valid=right.valid)
             ramp = base_ramp(left, BASE_SKIP_WIDTHS, BASE_RAMP_WIDTHS)
             weight = np.where(left.valid, weight, 0.0) * ramp
-            if np.count_nonzero(weight > 0.05) < max(8, len(tau) // 5):
+            if np.count_nonzero(weight > MATCHED_WEIGHT) < max(8, len(tau) // 5):
                 raise _NoArmError("left and right centerlines do not match row by row" + _length_mismatch(left, right))
             self._check_single_tube(disparity, weight, left)
+            # Rows do not match along a stretch that runs along them: where most of the arm's last
+            # third does, the profile guesses the tip's depth (``_tip_depth_ambiguity``).
+            tail = weight[(2 * len(weight)) // 3:]
+            tip_unmatched = float(np.mean(tail > MATCHED_WEIGHT)) < MIN_MATCHED_TIP_SHARE
             x, y, w = with_width_cue(tau, disparity, weight, left, ramp)
             knots = int(np.clip(left.arc_px[-1] / 30.0, 3, 30))
             # The arm leaves its fixed mount along the mount's axis, across the line of sight:
@@ -841,7 +857,7 @@ class CenterlineEstimator:
             points_rect = resample_polyline(dense, cfg.n_points)
         if cfg.tube_fit:
             with _timed(timings, "tube"):
-                points_rect = self._fit_tube(sides, dense)
+                points_rect = self._fit_tube(sides, dense, tip_unmatched=tip_unmatched)
         return self._tube_output(points_rect)
 
     def _tube_output(self, points_rect: np.ndarray):
@@ -851,7 +867,7 @@ class CenterlineEstimator:
         return points, uv_l, uv_r
 
     def _fit_tube(self, sides: dict[str, _Side], dense: np.ndarray | None,
-                  warm_control: np.ndarray | None = None) -> np.ndarray:
+                  warm_control: np.ndarray | None = None, tip_unmatched: bool = False) -> np.ndarray:
         """The 3D centerline from a tube fitted to the sub-pixel edges of both images (``estimator.tube_fit``),
         started from the disparity-profile estimate or the previous frame's tube; (n, 3) rectified-frame
         points, base first. The edges were measured with each image (``_silhouette_edges``).
@@ -919,6 +935,9 @@ class CenterlineEstimator:
                                 connector_radius_m=cfg.connector_radius_m or 0.0,
                                 base_outline={k: v.copy() for k, v in base_outline.items()})
         fit = fit_from(warm_control, edges)
+        depth_ambiguity = 0.0
+        if tip_unmatched and warm_control is None and fit is not None:
+            depth_ambiguity = self._tip_depth_ambiguity(fit, lambda start: fit_from(start, edges))
         moved = self._moved_from_last(fit)
         near = SECOND_START_MAX_WIDTHS * 2.0 * float(np.mean(self._radius))
         self._moving_fast = (warm_control is None and self._warm_fit is not None
@@ -1029,6 +1048,10 @@ class CenterlineEstimator:
         if ambiguous_tip > AMBIGUOUS_TIP_M:
             self._untrusted_tip = (f"where the tip ends is uncertain: fitted from the last frame's shape and afresh, "
                                    f"the tube fits about as well with its tip {ambiguous_tip * 1e3:.0f} mm apart")
+        if depth_ambiguity > AMBIGUOUS_TIP_M:
+            self._untrusted_tip = (f"where the tip ends is uncertain: its stretch runs along the image rows, and "
+                                   f"started nearer or further the tube fits as well with its tip "
+                                   f"{depth_ambiguity * 1e3:.0f} mm away")
         if lone is not None:
             self._untrusted_tip = (f"where the tip ends is uncertain: the {SIDES[lone]} image's outline of it does not "
                                    f"fit the tube, and the {SIDES[1 - lone]} image shows no outline of it")
@@ -1054,6 +1077,33 @@ class CenterlineEstimator:
         self._radius_frames += 1
         self._base.observe(fit)
         return points
+
+    def _tip_depth_ambiguity(self, fit: TubeFit, fit_from) -> float:
+        """How far from the fitted tip the tube's tip ends when the fit is started again with the tip's
+        depth moved (the last third's control points shifted along their lines of sight by up to
+        ``TIP_START_SHIFT_WIDTHS`` arm widths, towards and away from the cameras) and ends within
+        ``AMBIGUOUS_COST`` of the first fit's cost, or lower; 0 where no such start does.
+
+        Where the tip's stretch runs along the image rows, its disparity is not matched and the
+        profile only guesses its depth. An independent dim scene's tip, bent sideways and away, came
+        back valid 29 mm off in depth at cost 99; started from the true shape the fit ends 0.4 mm off
+        at 87, and started one arm width further away, at 87 too. The lower cost is not trusted to
+        decide (taken, it put another tip 11 mm off on the twin's random shapes): the images do not
+        say where the tip ends, and the frame is refused.
+        """
+        count = len(fit.control)
+        first = (2 * count) // 3
+        ramp = np.clip((np.arange(count) - first) / max(count - 1 - first, 1), 0.0, 1.0)[:, None]
+        sight = fit.control - np.array([0.5 * self._rect.baseline_m, 0.0, 0.0])
+        sight /= np.linalg.norm(sight, axis=1, keepdims=True)
+        shift = TIP_START_SHIFT_WIDTHS * 2.0 * float(np.mean(self._radius))
+        one = np.array([1.0])
+        apart = 0.0
+        for sign in (1.0, -1.0):
+            other = fit_from(fit.control + sign * shift * ramp * sight)
+            if other is not None and other.cost < fit.cost + AMBIGUOUS_COST:
+                apart = max(apart, float(np.linalg.norm(other.points(one)[0] - fit.points(one)[0])))
+        return apart
 
     def _moved_from_last(self, fit: TubeFit | None) -> float:
         """How far a fit's tip lies from the previous frame's (metres; infinite without a fit)."""
