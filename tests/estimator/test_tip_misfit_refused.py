@@ -3,8 +3,10 @@
 In dim light an arm whose last stretch runs along the image rows came back valid with its tip 34 mm
 off in depth: the fit turned the cap towards the camera and moved the end back along the arm, and the
 outline was missed by 0.81 px RMS, which grew the tip's standard deviation to only 6 mm (the bound is
-8). The scene is drawn by ``tests.scenes`` (benchmarks/unseen_scenes.py, seed 12, dim, frames 0-8),
-not the twin (``tests.unseen_draws``).
+8). That frame (benchmarks/unseen_scenes.py, seed 12, dim, frame 8) is refused earlier now that the
+arm's shaded side stays in the silhouette; the frame kept here is seed 18's frame 6 in dim light,
+whose fitted tip misses the left outline by 1.01 px RMS and, without the bound, comes back valid
+11.6 mm off. The scenes are drawn by ``tests.scenes``, not the twin (``tests.unseen_draws``).
 """
 
 from __future__ import annotations
@@ -21,13 +23,13 @@ def test_the_bound_is_beyond_the_misfit_that_grows_the_std():
 
 def test_a_tip_missing_its_outline_by_far_is_refused_and_tracked_on():
     estimator = CenterlineEstimator(unseen_calibration())
-    results = [(estimator.estimate(left, right), truth) for left, right, truth in unseen_frames(12, "dim", 8)]
+    results = [(estimator.estimate(left, right), truth) for left, right, truth in unseen_frames(18, "dim", 6)]
     last, truth = results[-1]
-    assert not last.valid  # before: valid, the tip 34 mm off (its outline missed by 0.81 px RMS)
+    assert not last.valid  # without the bound: valid, 11.6 mm off (its outline missed by 1.01 px RMS)
     assert "misses its outline" in last.reason and f"over {MAX_TIP_MISFIT_PX:g} px" in last.reason
     assert estimator._warm_fit is not None  # tracked on: the next frame starts from this shape
     for result, truth in results[:-1]:
         if result.valid:  # the frames before it stay honest
             score = score_against_backbone(result.points, truth)
             assert max(score["max_mm"], score["tip_mm"]) <= 10.0
-    assert sum(result.valid for result, _ in results[:-1]) >= 6  # measured: 7 of 8
+    assert sum(result.valid for result, _ in results[:-1]) >= 5  # measured: 6 of 6
