@@ -33,3 +33,25 @@ def unseen_frames(seed: int, condition: str, upto: int, frames: int = 12) -> lis
 def unseen_calibration():
     """The ZED-like calibration the benchmark draws with."""
     return _benchmark()._scenes().zed_like_calibration()
+
+
+def tracked(seed: int, condition: str, upto: int):
+    """A default estimator run over frames 0..``upto`` of one sequence: (estimator, [(result, truth)])."""
+    from estimator import CenterlineEstimator
+
+    estimator = CenterlineEstimator(unseen_calibration())
+    frames = unseen_frames(seed, condition, upto)
+    return estimator, [(estimator.estimate(left, right), truth) for left, right, truth in frames]
+
+
+def worst_mm(result, truth: np.ndarray) -> float:
+    """A valid result's largest error against the true backbone, the tip's included (mm)."""
+    from estimator.metrics import score_against_backbone
+
+    score = score_against_backbone(result.points, truth)
+    return max(score["max_mm"], score["tip_mm"])
+
+
+def false_valid(pairs, bound_mm: float = 10.0) -> list[int]:
+    """Indices of the (result, truth) pairs that came back valid more than ``bound_mm`` off."""
+    return [i for i, (result, truth) in enumerate(pairs) if result.valid and worst_mm(result, truth) > bound_mm]

@@ -11,10 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimator import CenterlineEstimator
 from estimator.colour_model import MIN_VALUE_FLOOR, SHADE_FRACTION, value_floor
-from estimator.metrics import score_against_backbone
-from tests.unseen_draws import unseen_calibration, unseen_frames
+from tests.unseen_draws import false_valid, tracked, worst_mm
 
 
 def test_the_value_floor_follows_the_arms_lit_side_down_and_never_up():
@@ -28,14 +26,10 @@ def test_the_value_floor_follows_the_arms_lit_side_down_and_never_up():
 
 
 def test_a_dim_arms_shaded_side_is_kept_and_the_frame_measured():
-    estimator = CenterlineEstimator(unseen_calibration())
-    results = [(estimator.estimate(left, right), truth) for left, right, truth in unseen_frames(12, "dim", 4)]
+    estimator, results = tracked(12, "dim", 4)
     assert estimator._gate_low[2] < 46  # the shaded side's values are in the gate
     last, truth = results[-1]
     assert last.valid, last.reason  # before: refused, the tip 45 mm uncertain
-    score = score_against_backbone(last.points, truth)
-    assert max(score["max_mm"], score["tip_mm"]) <= 3.0  # measured: 1.3 mm
-    for result, truth in results[:-1]:
-        assert result.valid, result.reason
-        score = score_against_backbone(result.points, truth)
-        assert max(score["max_mm"], score["tip_mm"]) <= 10.0
+    assert worst_mm(last, truth) <= 3.0  # measured: 1.3 mm
+    assert all(result.valid for result, _ in results[:-1])
+    assert false_valid(results[:-1]) == []

@@ -16,21 +16,15 @@ from __future__ import annotations
 
 import pytest
 
-from estimator import CenterlineEstimator
-from estimator.metrics import score_against_backbone
-from tests.unseen_draws import unseen_calibration, unseen_frames
+from tests.unseen_draws import false_valid, tracked
 
 
 @pytest.mark.parametrize(("seed", "valid_before"), [(17, 9), (13, 8)])  # before: valid 31 and 23 mm off
 def test_a_tip_that_fits_as_well_at_another_depth_is_refused_and_tracked_on(seed, valid_before):
-    estimator = CenterlineEstimator(unseen_calibration())
-    results = [(estimator.estimate(left, right), truth) for left, right, truth in unseen_frames(seed, "dim", 10)]
+    estimator, results = tracked(seed, "dim", 10)
     last, _ = results[-1]
     assert not last.valid
     assert "runs along the image rows" in last.reason
     assert estimator._warm_fit is not None  # tracked on
-    for result, truth in results[:-1]:
-        if result.valid:
-            score = score_against_backbone(result.points, truth)
-            assert max(score["max_mm"], score["tip_mm"]) <= 10.0
+    assert false_valid(results[:-1]) == []
     assert sum(result.valid for result, _ in results[:-1]) >= valid_before
