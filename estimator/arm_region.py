@@ -40,6 +40,9 @@ SIDEWAYS_WIDTHS = 1.0
 # benchmarks/unseen_scenes.py), not a box the tip rests against (3 times, tests/estimator/test_arm_region.py).
 EXTENSION_WIDTHS = 2.0
 COVERED = 0.9  # share of a trace's path another must run over to extend it (``_fullest_match``)
+MIN_FULLER_PX = 1.0  # a pair is fuller by more than this (a trace read backwards sums its length in another order)
+STRAY_WIDTHS = 2.0  # a region cut at the tracked corridor this many tube widths wide is not the arm ...
+STRAY_OVERLAP = 0.25  # ... where it overlaps the corridor along the curve by at most this many square widths
 
 
 def corridor(shape: tuple[int, int], curve_px: np.ndarray, half_width_px: float) -> np.ndarray:
@@ -78,6 +81,39 @@ def keep_in_corridor(mask: np.ndarray, curve_px: np.ndarray, reach_px: float, cl
     if not with_cut:
         return clipped
     return clipped, cv2.subtract(kept, clipped)
+
+
+def without_wide_strays(kept: np.ndarray, cut: np.ndarray, curve_px: np.ndarray, reach_px: float,
+                        width_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """``keep_in_corridor``'s kept and cut masks without the regions that reach the corridor only past the
+    curve's ends (within ``STRAY_OVERLAP`` square widths of the corridor along the curve itself) and are far
+    wider than the tube (``STRAY_WIDTHS``): something of the arm's colour ahead of the tip (a wooden box as
+    the dim light's value floor falls), not the tip swung out of the corridor, which is a tube's width.
+    Cut, such a region made the tracked corridor give up and the cold search lose the arm's far section
+    (an unseen dim frame: "only 467 mm of the 685 mm arm is visible")."""
+    union = cv2.bitwise_or(kept, cut)
+    count, labels = cv2.connectedComponents(union, connectivity=8)
+    strays = np.unique(labels[cut > 0])
+    strays = strays[strays > 0]
+    if len(strays) == 0:
+        return kept, cut
+    along = corridor(union.shape, curve_px, reach_px) > 0
+    # closed first: a dim wooden box passes the gate speckled, and its holes would hide its width
+    solid = cv2.morphologyEx((union > 0).astype(np.uint8), cv2.MORPH_CLOSE,
+                             cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5)))
+    depth = cv2.distanceTransform(solid, cv2.DIST_L2, 3)
+    drop = np.zeros(count, bool)
+    for label in strays:
+        region = labels == label
+        drop[label] = (np.count_nonzero(region & along) <= STRAY_OVERLAP * width_px**2
+                       and float(depth[region].max()) > STRAY_WIDTHS * 0.5 * width_px)
+    if not drop.any():
+        return kept, cut
+    gone = drop[labels]
+    kept, cut = kept.copy(), cut.copy()
+    kept[gone] = 0
+    cut[gone] = 0
+    return kept, cut
 
 
 @dataclass(frozen=True)
@@ -126,6 +162,11 @@ class Trace:
     @property
     def tube_like(self) -> bool:
         return self.length >= MIN_ASPECT * 2.0 * self.half_width and self.consistency >= MIN_CONSISTENCY
+
+    def reversed(self) -> Trace:
+        """The same tube walked from its other end."""
+        return Trace(self.path[::-1].copy(), self.half_width, self.consistency,
+                     None if self.halves is None else self.halves[::-1].copy())
 
     def mask(self, gate: np.ndarray) -> np.ndarray:
         """The gate's pixels within the tube's reach of the path: what touches it but is wider is cut off."""
@@ -243,14 +284,18 @@ def _fullest_match(left: Trace, right: Trace, lefts: list[Trace], rights: list[T
     A walk may stop at a gap that the walk from the tip's end crosses: a slanted connector, wide where
     the arm comes towards the camera, past which the far section is drawn wider and turned. One
     image's trace then ended there and the other's did not (refused as a length mismatch), or both did
-    (refused as too short)."""
+    (refused as too short). A trace that runs over the match is also read backwards: walked from the
+    tip's end (the right image has no base hint, so its first walk may start there), it starts at the
+    base only read so (an unseen dim arm curled up to beside its base: the right image kept 63 % of it)."""
     over_left = [t for t in lefts if t is left or _covers(t, left, shape)]
     over_right = [t for t in rights if t is right or _covers(t, right, shape)]
+    over_left += [t.reversed() for t in over_left if t is not left]
+    over_right += [t.reversed() for t in over_right if t is not right]
     best, best_length = (left, right), min(left.length, right.length)
     for other_left in over_left:
         for other_right in over_right:
             length = min(other_left.length, other_right.length)
-            if length > best_length and _stereo_match(other_left, other_right, geometry):
+            if length > best_length + MIN_FULLER_PX and _stereo_match(other_left, other_right, geometry):
                 best, best_length = (other_left, other_right), length
     return best
 

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
-from estimator.arm_region import TubeGeometry, find_tube, keep_in_corridor, saturation_split
+from estimator.arm_region import TubeGeometry, find_tube, keep_in_corridor, saturation_split, without_wide_strays
 from estimator.calibration import StereoCalibration
 from estimator.centerline import centerline_nodes
 from estimator.colour_model import ArmColourModel, value_floor
@@ -721,6 +721,7 @@ class CenterlineEstimator:
         # is cut off at the corridor's edge.
         reach = 0.5 * width + max(0.5 * width, 3.0)
         kept, cut = keep_in_corridor(gate, _extended(curve, width), reach, reach, with_cut=True, min_area_px=min_area)
+        kept, cut = without_wide_strays(kept, cut, curve, reach, width)
         if np.count_nonzero(kept) < 0.8 * area:
             return None
         cut_px = np.count_nonzero(cut)
