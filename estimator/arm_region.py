@@ -40,7 +40,6 @@ SIDEWAYS_WIDTHS = 1.0
 # benchmarks/unseen_scenes.py), not a box the tip rests against (3 times, tests/estimator/test_arm_region.py).
 EXTENSION_WIDTHS = 2.0
 COVERED = 0.9  # share of a trace's path another must run over to extend it (``_fullest_match``)
-MIN_FULLER_PX = 1.0  # a pair is fuller by more than this (a trace read backwards sums its length in another order)
 STRAY_WIDTHS = 2.0  # a region cut at the tracked corridor this many tube widths wide is not the arm ...
 STRAY_OVERLAP = 0.25  # ... where it overlaps the corridor along the curve by at most this many square widths
 
@@ -163,11 +162,6 @@ class Trace:
     def tube_like(self) -> bool:
         return self.length >= MIN_ASPECT * 2.0 * self.half_width and self.consistency >= MIN_CONSISTENCY
 
-    def reversed(self) -> Trace:
-        """The same tube walked from its other end."""
-        return Trace(self.path[::-1].copy(), self.half_width, self.consistency,
-                     None if self.halves is None else self.halves[::-1].copy())
-
     def mask(self, gate: np.ndarray) -> np.ndarray:
         """The gate's pixels within the tube's reach of the path: what touches it but is wider is cut off."""
         return cv2.bitwise_and(gate, corridor(gate.shape, self.path, 1.3 * self.half_width + 1.0))
@@ -284,18 +278,14 @@ def _fullest_match(left: Trace, right: Trace, lefts: list[Trace], rights: list[T
     A walk may stop at a gap that the walk from the tip's end crosses: a slanted connector, wide where
     the arm comes towards the camera, past which the far section is drawn wider and turned. One
     image's trace then ended there and the other's did not (refused as a length mismatch), or both did
-    (refused as too short). A trace that runs over the match is also read backwards: walked from the
-    tip's end (the right image has no base hint, so its first walk may start there), it starts at the
-    base only read so (an unseen dim arm curled up to beside its base: the right image kept 63 % of it)."""
+    (refused as too short)."""
     over_left = [t for t in lefts if t is left or _covers(t, left, shape)]
     over_right = [t for t in rights if t is right or _covers(t, right, shape)]
-    over_left += [t.reversed() for t in over_left if t is not left]
-    over_right += [t.reversed() for t in over_right if t is not right]
     best, best_length = (left, right), min(left.length, right.length)
     for other_left in over_left:
         for other_right in over_right:
             length = min(other_left.length, other_right.length)
-            if length > best_length + MIN_FULLER_PX and _stereo_match(other_left, other_right, geometry):
+            if length > best_length and _stereo_match(other_left, other_right, geometry):
                 best, best_length = (other_left, other_right), length
     return best
 

@@ -70,12 +70,3 @@ def test_a_wide_connector_near_the_camera_does_not_end_the_cold_search():
     assert result.valid, result.reason  # before: "the left one is 54% as long as the other"
     assert score_against_backbone(result.points, scene.gt_points)["max_mm"] <= 5.0  # measured 1.3 mm
 
-
-def test_a_trace_walked_from_the_tip_is_read_backwards_to_match():
-    # the right image has no base hint: its first walk may start at the tip (an arm curled up to beside its
-    # base, both ends on about the same row) and its walk from the base stop at a connector
-    left = _vertical(200.0, 10.0, 130.0)
-    right_short, right_from_tip = _vertical(160.0, 10.0, 70.0), _vertical(160.0, 130.0, 10.0)
-    got_left, got_right = _fullest_match(left, right_short, [left], [right_short, right_from_tip], GEOMETRY, SHAPE)
-    assert got_left is left
-    assert np.array_equal(got_right.path, right_from_tip.path[::-1])  # read from the base: as long as the left
