@@ -69,4 +69,3 @@ def test_a_wide_connector_near_the_camera_does_not_end_the_cold_search():
     result = CenterlineEstimator(calib).estimate(scene.left, scene.right)
     assert result.valid, result.reason  # before: "the left one is 54% as long as the other"
     assert score_against_backbone(result.points, scene.gt_points)["max_mm"] <= 5.0  # measured 1.3 mm
-
