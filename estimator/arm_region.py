@@ -90,6 +90,8 @@ def without_wide_strays(kept: np.ndarray, cut: np.ndarray, curve_px: np.ndarray,
     the dim light's value floor falls), not the tip swung out of the corridor, which is a tube's width.
     Cut, such a region made the tracked corridor give up and the cold search lose the arm's far section
     (an unseen dim frame: "only 467 mm of the 685 mm arm is visible")."""
+    if not cut.any():  # the usual tracked frame: nothing cut, nothing to look at
+        return kept, cut
     union = cv2.bitwise_or(kept, cut)
     count, labels = cv2.connectedComponents(union, connectivity=8)
     strays = np.unique(labels[cut > 0])
