@@ -992,6 +992,9 @@ class CenterlineEstimator:
         # contradicted.
         lone = next((k for end, k in unexplained if end == "tip"
                      and len(tip_outline.get(1 - k, ())) < MIN_CAP_POINTS), None)
+        # Neither image's outline explained: both are left out with their end points, and nothing is
+        # left to end the tube but where its edges stop (a blurred tip: 23 mm short, valid).
+        neither = all(("tip", k) in unexplained for k in range(len(SIDES)))
         if unexplained or pruned:
             for end, k in unexplained:
                 del (tip_outline if end == "tip" else base_outline)[k]
@@ -1053,6 +1056,9 @@ class CenterlineEstimator:
             self._untrusted_tip = (f"where the tip ends is uncertain: its stretch runs along the image rows, and "
                                    f"started nearer or further the tube fits as well with its tip "
                                    f"{depth_ambiguity * 1e3:.0f} mm away")
+        if neither:
+            self._untrusted_tip = ("where the tip ends is uncertain: neither image's outline of it fits the tube, "
+                                   "so only where its edges stop ends it")
         if lone is not None:
             self._untrusted_tip = (f"where the tip ends is uncertain: the {SIDES[lone]} image's outline of it does not "
                                    f"fit the tube, and the {SIDES[1 - lone]} image shows no outline of it")
