@@ -1049,6 +1049,10 @@ class CenterlineEstimator:
             raise _NoArmError(f"the fitted tip misses its outline in the {SIDES[image]} image by {misfit:.2f} px "
                               f"RMS: its place is uncertain ({std[-1] * 1e3:.0f} mm standard deviation, counting "
                               "the misfit)")
+        # (the reasons below, where they hold too, say more and replace it)
+        if neither:
+            self._untrusted_tip = ("where the tip ends is uncertain: neither image's outline of it fits the tube, "
+                                   "so only where its edges stop ends it")
         if ambiguous_tip > AMBIGUOUS_TIP_M:
             self._untrusted_tip = (f"where the tip ends is uncertain: fitted from the last frame's shape and afresh, "
                                    f"the tube fits about as well with its tip {ambiguous_tip * 1e3:.0f} mm apart")
@@ -1056,9 +1060,6 @@ class CenterlineEstimator:
             self._untrusted_tip = (f"where the tip ends is uncertain: its stretch runs along the image rows, and "
                                    f"started nearer or further the tube fits as well with its tip "
                                    f"{depth_ambiguity * 1e3:.0f} mm away")
-        if neither:
-            self._untrusted_tip = ("where the tip ends is uncertain: neither image's outline of it fits the tube, "
-                                   "so only where its edges stop ends it")
         if lone is not None:
             self._untrusted_tip = (f"where the tip ends is uncertain: the {SIDES[lone]} image's outline of it does not "
                                    f"fit the tube, and the {SIDES[1 - lone]} image shows no outline of it")
