@@ -131,6 +131,14 @@ AMBIGUOUS_TIP_M = 0.015
 MIN_FLOOR_PIXELS = 100  # an image's arm with fewer mask pixels does not set the gate's value floor
 MATCHED_WEIGHT = 0.05  # a row-matched point of the left curve weighs more than this in the disparity profile
 MIN_MATCHED_TIP_SHARE = 0.5  # under this share of the arm's last third matched, the tip's depth is a guess
+# Such a tip's depth rests on its cap's outline alone (its side edges run along the rows, where they
+# give no disparity), and a flat cap turned towards the camera or as far away outlines alike. Missed
+# by more than this (RMS, pixels), the outline does not hold the depth: on fresh unseen sequences
+# (seeds 30-41) one shape came back valid 37-38 mm off in dim light, blur and behind a cable, its
+# outline missed by 0.54-0.69 px with 4.9-6.3 mm of grown standard deviation (under the 8 mm bound).
+# Over 2,900 valid frames (unseen seeds 10-21, 30-41, 42-53 and the twin's stored sets) it refuses
+# those three and three more, 3.0, 4.4 and 6.9 mm off; the twin's sets have none over it.
+MAX_ROW_TIP_MISFIT_PX = 0.5
 TIP_START_SHIFT_WIDTHS = 1.0  # see _tip_depth_ambiguity
 # Starting the fit from the previous frame's tube saves the disparity profile but measured worse
 # (2.8 against 2.2 mm on a late-ramp stretch of the twin): the profile starts it better.
@@ -1060,6 +1068,10 @@ class CenterlineEstimator:
             self._untrusted_tip = (f"where the tip ends is uncertain: its stretch runs along the image rows, and "
                                    f"started nearer or further the tube fits as well with its tip "
                                    f"{depth_ambiguity * 1e3:.0f} mm away")
+        if tip_unmatched and misfit > MAX_ROW_TIP_MISFIT_PX:
+            self._untrusted_tip = ("where the tip ends is uncertain: its stretch runs along the image rows, so only "
+                                   f"its cap's outline gives its depth, and the fitted end misses that outline in the "
+                                   f"{SIDES[image]} image by {misfit:.2f} px RMS (over {MAX_ROW_TIP_MISFIT_PX:g} px)")
         if lone is not None:
             self._untrusted_tip = (f"where the tip ends is uncertain: the {SIDES[lone]} image's outline of it does not "
                                    f"fit the tube, and the {SIDES[1 - lone]} image shows no outline of it")
