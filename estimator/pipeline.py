@@ -1061,6 +1061,10 @@ class CenterlineEstimator:
         if neither:
             self._untrusted_tip = ("where the tip ends is uncertain: neither image's outline of it fits the tube, "
                                    "so only where its edges stop ends it")
+        if tip_unmatched and misfit > MAX_ROW_TIP_MISFIT_PX:
+            self._untrusted_tip = ("where the tip ends is uncertain: its stretch runs along the image rows, so only "
+                                   f"its cap's outline gives its depth, and the fitted end misses that outline in the "
+                                   f"{SIDES[image]} image by {misfit:.2f} px RMS (over {MAX_ROW_TIP_MISFIT_PX:g} px)")
         if ambiguous_tip > AMBIGUOUS_TIP_M:
             self._untrusted_tip = (f"where the tip ends is uncertain: fitted from the last frame's shape and afresh, "
                                    f"the tube fits about as well with its tip {ambiguous_tip * 1e3:.0f} mm apart")
@@ -1068,10 +1072,6 @@ class CenterlineEstimator:
             self._untrusted_tip = (f"where the tip ends is uncertain: its stretch runs along the image rows, and "
                                    f"started nearer or further the tube fits as well with its tip "
                                    f"{depth_ambiguity * 1e3:.0f} mm away")
-        if tip_unmatched and misfit > MAX_ROW_TIP_MISFIT_PX:
-            self._untrusted_tip = ("where the tip ends is uncertain: its stretch runs along the image rows, so only "
-                                   f"its cap's outline gives its depth, and the fitted end misses that outline in the "
-                                   f"{SIDES[image]} image by {misfit:.2f} px RMS (over {MAX_ROW_TIP_MISFIT_PX:g} px)")
         if lone is not None:
             self._untrusted_tip = (f"where the tip ends is uncertain: the {SIDES[lone]} image's outline of it does not "
                                    f"fit the tube, and the {SIDES[1 - lone]} image shows no outline of it")
