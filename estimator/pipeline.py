@@ -136,7 +136,7 @@ MIN_MATCHED_TIP_SHARE = 0.5  # under this share of the arm's last third matched,
 # by more than this (RMS, pixels), the outline does not hold the depth: on fresh unseen sequences
 # (seeds 30-41) one shape came back valid 37-38 mm off in dim light, blur and behind a cable, its
 # outline missed by 0.54-0.69 px with 4.9-6.3 mm of grown standard deviation (under the 8 mm bound).
-# Over 2,900 valid frames (unseen seeds 10-21, 30-41, 42-53 and the twin's stored sets) it refuses
+# Over 2,700 valid frames (unseen seeds 10-21, 30-41, 42-53 and the twin's stored sets) it refuses
 # those three and three more, 3.0, 4.4 and 6.9 mm off; the twin's sets have none over it.
 MAX_ROW_TIP_MISFIT_PX = 0.5
 TIP_START_SHIFT_WIDTHS = 1.0  # see _tip_depth_ambiguity
