@@ -6,7 +6,9 @@ per image, the fit's first stage traded that tilt for length and left the face e
 apex; the outline stage could not turn it back. On fresh unseen sequences (benchmarks/unseen_scenes.py
 ``--first-seed 30``) a base outline missed by over 0.3 px RMS came with the base 5-7.5 mm off at the
 median, and five frames were valid over 10 mm off for that alone. Seed 37's warm frame 0 is one:
-10.2 mm off at the base, outline missed by 0.55-0.60 px; restarted, 0.6 mm at a lower cost.
+10.2 mm off at the base, outline missed by 0.55-0.60 px; restarted, 0.6 mm at a lower cost. Seed 44's
+blurred frame 0 comes from a third set of seeds, drawn only after the restart was built: 14.5 mm off
+at the base before, 1.9 mm after.
 """
 
 from __future__ import annotations
@@ -23,16 +25,21 @@ def _base_mm(result, truth) -> float:
     return score_against_backbone(result.points, truth)["base_mm"]
 
 
-def test_a_tilted_free_base_is_placed_at_its_face_not_at_the_outline_apex():
-    _, results = tracked(37, "warm", 0)
+FRAMES = [(37, "warm"), (44, "blur")]
+
+
+@pytest.mark.parametrize(("seed", "condition"), FRAMES)
+def test_a_tilted_free_base_is_placed_at_its_face_not_at_the_outline_apex(seed, condition):
+    _, results = tracked(seed, condition, 0)
     result, truth = results[0]
     assert result.valid
-    assert _base_mm(result, truth) < 3.0  # 10.2 mm without the restart
+    assert _base_mm(result, truth) < 3.0  # 10.2 and 14.5 mm without the restart
 
 
-def test_without_the_restart_the_same_base_is_off(monkeypatch):
+@pytest.mark.parametrize(("seed", "condition"), FRAMES)
+def test_without_the_restart_the_same_base_is_off(monkeypatch, seed, condition):
     monkeypatch.setattr(tube_fit, "BASE_RESTART_PX", np.inf)
-    _, results = tracked(37, "warm", 0)
+    _, results = tracked(seed, condition, 0)
     result, truth = results[0]
     assert not result.valid or _base_mm(result, truth) > 8.0  # the test above measures the restart
 
