@@ -170,7 +170,7 @@ class Trace:
 
 
 def _trace(points: np.ndarray, adjacency: list[list[int]], branches: list[list[int]], distance: np.ndarray,
-           start: tuple[int, bool]) -> Trace:
+           start: tuple[int, bool], reaches: dict[int, float] | None = None) -> Trace:
     """Walk from a skeleton end: at each junction or gap the least-bending branch of about the
     tube's width; a branch that widens (a distractor the tube touches) ends the walk there."""
     from estimator.skeleton import least_bending_walk
@@ -182,7 +182,8 @@ def _trace(points: np.ndarray, adjacency: list[list[int]], branches: list[list[i
     # A branch about the tube's width may continue it, and a tube does not turn back on itself at a junction.
     path = least_bending_walk(points, adjacency, branches, start, span=max(4, int(2 * half)),
                               gap_px=GAP_WIDTHS * 2.0 * half, sideways_px=SIDEWAYS_WIDTHS * 2.0 * half,
-                              keep=lambda c: 0.5 <= half_of(c) / max(half, 1e-9) <= 2.0, turn_back=False)
+                              keep=lambda c: 0.5 <= half_of(c) / max(half, 1e-9) <= 2.0, turn_back=False,
+                              reaches=reaches, usual_reach=half)
     ids = np.array(path)
     values = distance[points[ids, 1].astype(int), points[ids, 0].astype(int)]
     half = float(np.median(values))
@@ -213,7 +214,7 @@ def trace_tubes(mask: np.ndarray, base_hint: tuple[float, float] | None, min_are
     Returns no trace for a mask that is mostly one colour field (warm light on a wall): its
     skeleton is a maze; the caller raises the saturation floor first.
     """
-    from estimator.skeleton import _branches, _neighbours, thin
+    from estimator.skeleton import _branches, _neighbours, end_reaches, thin, with_stepping_stones
 
     skeleton = thin(mask)
     if np.count_nonzero(skeleton) > MAX_SKELETON_PX:
@@ -223,8 +224,11 @@ def trace_tubes(mask: np.ndarray, base_hint: tuple[float, float] | None, min_are
         return []
     distance = cv2.distanceTransform((mask > 0).astype(np.uint8), cv2.DIST_L2, 3)
     branches = [b for b in _branches(points, adjacency) if len(b) >= 2]
+    typical_half = float(np.median(distance[points[:, 1].astype(int), points[:, 0].astype(int)]))
+    points, adjacency, branches, stones = with_stepping_stones(mask, points, adjacency, branches, typical_half)
     degree = np.array([len(a) for a in adjacency])
-    ends = [(bi, first) for bi, b in enumerate(branches) for first in (True, False)
+    reaches = end_reaches(mask, points, branches, adjacency, span=max(4, int(4 * typical_half)))
+    ends = [(bi, first) for bi, b in enumerate(branches) if bi not in stones for first in (True, False)
             if degree[b[0] if first else b[-1]] <= 1]
     if base_hint is None:
         key = [points[branches[bi][0 if first else -1]][1] for bi, first in ends]
@@ -235,7 +239,7 @@ def trace_tubes(mask: np.ndarray, base_hint: tuple[float, float] | None, min_are
     order = np.argsort(key, kind="stable")
     # ... and the end furthest from it: the walk from the tip crosses gaps the walk from the base stops at
     for index in order[:MAX_STARTS] if len(order) <= MAX_STARTS else np.append(order[:MAX_STARTS], order[-1]):
-        trace = _trace(points, adjacency, branches, distance, ends[index])
+        trace = _trace(points, adjacency, branches, distance, ends[index], reaches)
         if trace.tube_like and trace.half_width * trace.length * 2.0 >= min_area_px:
             traces.append(trace)
     return traces

@@ -131,6 +131,52 @@ def _branches(points: np.ndarray, adjacency: list[list[int]]) -> list[list[int]]
     return branches
 
 
+STONE_HALF = 0.5  # a skeleton-less piece whose half width is at least this share of the tube's is a stepping stone
+
+
+def with_stepping_stones(mask: np.ndarray, points: np.ndarray, adjacency: list[list[int]],
+                         branches: list[list[int]], half_px: float
+                         ) -> tuple[np.ndarray, list[list[int]], list[list[int]], set[int]]:
+    """The skeleton graph with a short branch through each piece of the mask that thinning left
+    without one: a stretch of the tube about as long as it is wide, cut out between an occluder
+    crossing in front of it and a baseplate, thins to one pixel or to none, so the walk met a gap
+    of both cuts and the piece together (over 3 widths where each cut was under one) and stopped.
+
+    Each such piece at least ``STONE_HALF`` of ``half_px`` thick (not a speck) gets a two-point
+    branch through its centroid along its longer axis. Returns (points, adjacency, branches, the
+    indices of the branches added); the added points have no neighbours, so a walk reaches and
+    leaves them only across gaps.
+    """
+    count, labels, stats, centroids = cv2.connectedComponentsWithStats((mask > 0).astype(np.uint8), connectivity=8)
+    if count <= 1:
+        return points, adjacency, branches, set()
+    covered = np.zeros(count, bool)
+    for b in branches:
+        if len(b) >= 2:
+            at = points[b].astype(int)
+            covered[labels[at[:, 1], at[:, 0]]] = True
+    distance = cv2.distanceTransform((mask > 0).astype(np.uint8), cv2.DIST_L2, 3)
+    new_points, new_branches = [], []
+    for k in np.flatnonzero(~covered[1:]) + 1:
+        x, y, w, h, _ = stats[k]
+        piece = labels[y:y + h, x:x + w] == k
+        if float(distance[y:y + h, x:x + w][piece].max()) < STONE_HALF * half_px:
+            continue
+        vs, us = np.nonzero(piece)
+        xy = np.column_stack([us + x, vs + y]).astype(np.float64)
+        centre = centroids[k]
+        spread = np.cov((xy - centre).T) if len(xy) > 2 else np.eye(2)
+        axis = np.linalg.eigh(spread)[1][:, -1]
+        first = len(points) + len(new_points)
+        new_points += [centre - 0.5 * axis, centre + 0.5 * axis]
+        new_branches.append([first, first + 1])
+    if not new_points:
+        return points, adjacency, branches, set()
+    added = set(range(len(branches), len(branches) + len(new_branches)))
+    return (np.vstack([points, np.array(new_points)]), adjacency + [[] for _ in new_points],
+            branches + new_branches, added)
+
+
 def _direction(points: np.ndarray, path: list[int], at_end: bool, span: int = 8) -> np.ndarray:
     """Unit direction of travel over the last (or first) ``span`` pixels of a path."""
     seg = points[path[-span:]] if at_end else points[path[:span]]
@@ -139,10 +185,36 @@ def _direction(points: np.ndarray, path: list[int], at_end: bool, span: int = 8)
     return d / norm if norm > 0 else d
 
 
+def end_reaches(mask: np.ndarray, points: np.ndarray, branches: list[list[int]], adjacency: list[list[int]],
+                span: int) -> dict[int, float]:
+    """For each free end of a branch (a skeleton point with at most one neighbour), how far the mask
+    goes on beyond it, along the branch's direction there: thinning retracts an end by about half
+    the tube's width where the tube is cut square across, but by far more where the cut is slanted
+    (a baseplate seen at an angle), so gaps between skeleton ends overstate the gaps in the mask."""
+    h, w = mask.shape
+    out: dict[int, float] = {}
+    for b in branches:
+        for at_end in (False, True):
+            tip = b[-1] if at_end else b[0]
+            if len(adjacency[tip]) > 1 or tip in out:
+                continue
+            direction = _direction(points, b, at_end=True, span=span) if at_end else \
+                -_direction(points, b, at_end=False, span=span)
+            reach = 0.0
+            while reach < max(h, w):
+                x, y = points[tip] + (reach + 0.5) * direction
+                if not (0 <= int(round(x)) < w and 0 <= int(round(y)) < h) or not mask[int(round(y)), int(round(x))]:
+                    break
+                reach += 0.5
+            out[tip] = reach
+    return out
+
+
 def least_bending_walk(points: np.ndarray, adjacency: list[list[int]], branches: list[list[int]],
                        start: tuple[int, bool], *, span: int, gap_px: float,
                        keep: Callable[[list[int]], bool] | None = None, turn_back: bool = True,
-                       sideways_px: float | None = None) -> list[int]:
+                       sideways_px: float | None = None, reaches: dict[int, float] | None = None,
+                       usual_reach: float = 0.0) -> list[int]:
     """Indices into ``points`` of a walk over skeleton branches from one branch's end (``start``:
     the branch and whether it is walked from its first point): at each junction, or across a gap of
     at most ``gap_px`` from a free end, it continues along the branch that bends least from the
@@ -153,6 +225,9 @@ def least_bending_walk(points: np.ndarray, adjacency: list[list[int]], branches:
         turn_back: whether the walk may leave a junction at more than 90 degrees from its heading.
         sideways_px: a gap is jumped only where its far side lies at most this far across the
             heading (None: no limit).
+        reaches: how far the mask goes on beyond free skeleton ends (``end_reaches``); where it goes
+            further than ``usual_reach`` (the retraction ``gap_px`` allows for), the excess is taken
+            off the gap.
     """
     bi, first = start
     used = {bi}
@@ -168,6 +243,9 @@ def least_bending_walk(points: np.ndarray, adjacency: list[list[int]], branches:
                 c = cand[::-1] if reverse else cand
                 gap = float(np.linalg.norm(points[c[0]] - points[tail]))
                 connected = c[0] == tail or c[0] in adjacency[tail]
+                if not connected and reaches:
+                    gap = max(gap - max(reaches.get(tail, 0.0) - usual_reach, 0.0)
+                              - max(reaches.get(c[0], 0.0) - usual_reach, 0.0), 0.0)
                 if not connected and gap > gap_px:
                     continue
                 if keep is not None and not keep(c):
