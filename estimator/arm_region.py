@@ -227,7 +227,8 @@ def trace_tubes(mask: np.ndarray, base_hint: tuple[float, float] | None, min_are
     typical_half = float(np.median(distance[points[:, 1].astype(int), points[:, 0].astype(int)]))
     points, adjacency, branches, stones = with_stepping_stones(mask, points, adjacency, branches, typical_half)
     degree = np.array([len(a) for a in adjacency])
-    reaches = end_reaches(mask, points, branches, adjacency, span=max(4, int(4 * typical_half)))
+    reaches = end_reaches(mask, points, branches, adjacency, span=max(4, int(4 * typical_half)),
+                          min_length=2.0 * typical_half)
     ends = [(bi, first) for bi, b in enumerate(branches) if bi not in stones for first in (True, False)
             if degree[b[0] if first else b[-1]] <= 1]
     if base_hint is None:

@@ -186,14 +186,20 @@ def _direction(points: np.ndarray, path: list[int], at_end: bool, span: int = 8)
 
 
 def end_reaches(mask: np.ndarray, points: np.ndarray, branches: list[list[int]], adjacency: list[list[int]],
-                span: int) -> dict[int, float]:
+                span: int, min_length: float) -> dict[int, float]:
     """For each free end of a branch (a skeleton point with at most one neighbour), how far the mask
     goes on beyond it, along the branch's direction there: thinning retracts an end by about half
     the tube's width where the tube is cut square across, but by far more where the cut is slanted
-    (a baseplate seen at an angle), so gaps between skeleton ends overstate the gaps in the mask."""
+    (a baseplate seen at an angle), so gaps between skeleton ends overstate the gaps in the mask.
+
+    Only branches at least ``min_length`` pixels long: a blob's skeleton (a skin-coloured ball past
+    a blurred tip, ``tests/estimator/test_lab_scenes.py``) is short and retracts as far from its
+    ends, and credited so it was jumped to."""
     h, w = mask.shape
     out: dict[int, float] = {}
     for b in branches:
+        if len(b) < min_length:
+            continue
         for at_end in (False, True):
             tip = b[-1] if at_end else b[0]
             if len(adjacency[tip]) > 1 or tip in out:
@@ -225,9 +231,9 @@ def least_bending_walk(points: np.ndarray, adjacency: list[list[int]], branches:
         turn_back: whether the walk may leave a junction at more than 90 degrees from its heading.
         sideways_px: a gap is jumped only where its far side lies at most this far across the
             heading (None: no limit).
-        reaches: how far the mask goes on beyond free skeleton ends (``end_reaches``); where it goes
-            further than ``usual_reach`` (the retraction ``gap_px`` allows for), the excess is taken
-            off the gap.
+        reaches: how far the mask goes on beyond free skeleton ends (``end_reaches``); across a gap
+            between two ends both listed there, what each goes further than ``usual_reach`` (the
+            retraction ``gap_px`` allows for) is taken off the gap.
     """
     bi, first = start
     used = {bi}
@@ -243,9 +249,8 @@ def least_bending_walk(points: np.ndarray, adjacency: list[list[int]], branches:
                 c = cand[::-1] if reverse else cand
                 gap = float(np.linalg.norm(points[c[0]] - points[tail]))
                 connected = c[0] == tail or c[0] in adjacency[tail]
-                if not connected and reaches:
-                    gap = max(gap - max(reaches.get(tail, 0.0) - usual_reach, 0.0)
-                              - max(reaches.get(c[0], 0.0) - usual_reach, 0.0), 0.0)
+                if not connected and reaches and tail in reaches and c[0] in reaches:
+                    gap = max(gap - max(reaches[tail] - usual_reach, 0.0) - max(reaches[c[0]] - usual_reach, 0.0), 0.0)
                 if not connected and gap > gap_px:
                     continue
                 if keep is not None and not keep(c):
