@@ -398,6 +398,7 @@ class Rectification:
     size: tuple[int, int]  # rectified canvas (width, height)
     _maps: dict = field(default_factory=dict, repr=False)
     _nearest: dict = field(default_factory=dict, repr=False)
+    _view: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def from_calibration(cls, calib: StereoCalibration) -> Rectification:
@@ -468,6 +469,19 @@ class Rectification:
         frac = np.stack([m2 & (_INTER_TAB - 1), m2 >> _INTER_BITS], axis=-1)
         self._nearest[key] = np.ascontiguousarray(m1 + (2 * frac >= _INTER_TAB).astype(np.int16))
         return self._nearest[key]
+
+    def view_margin_px(self, side: str) -> np.ndarray:
+        """(H, W) float32: how far each canvas pixel lies from the edge of what the camera saw (the
+        canvas pixels whose raw pixel falls outside the raw image, and the canvas's own border).
+        The canvas is grown to hold every raw pixel, so its corners and rims are black, not scene."""
+        side = _side(side)
+        if side not in self._view:
+            m = self.nearest_map(side)
+            w, h = self.calibration.image_size
+            seen = (m[..., 0] >= 0) & (m[..., 0] < w) & (m[..., 1] >= 0) & (m[..., 1] < h)
+            seen = np.pad(seen, 1).astype(np.uint8)  # beyond the canvas nothing is seen
+            self._view[side] = cv2.distanceTransform(seen, cv2.DIST_L2, 3)[1:-1, 1:-1]
+        return self._view[side]
 
     def rectify_image(self, image: np.ndarray, side: str, roi: tuple[int, int, int, int] | None = None,
                       interpolation: int = cv2.INTER_LINEAR) -> np.ndarray:

@@ -175,6 +175,7 @@ CONNECTOR_WEIGHT_FLOOR = 0.1  # below this share of the dip, a sample is the arm
 MAX_CONNECTOR_ROW_PX = 4.0  # see _paired_connectors
 EDGE_STRIDE = 1  # every sample of the 2D centerline (3 px apart); every second gave 1.84 mm, not 1.42, on the late ramp
 SIDES = ("left", "right")
+VIEW_EDGE_PX = 3.0  # an end this close to the edge of what the camera saw runs on out of view
 
 
 @dataclass(frozen=True, eq=False)
@@ -519,6 +520,7 @@ class CenterlineEstimator:
             if cfg.tube_fit:
                 with _timed(timings, "edges"):
                     edges = _silhouette_edges(crop, mask, curve, offset)
+                self._check_ends_in_view(edges[3], side)
                 if cfg.deblur:
                     with _timed(timings, "blur"):
                         steps = _raw_steps(raw, curve, offset, edges, deblurred=crop is not raw)
@@ -529,6 +531,23 @@ class CenterlineEstimator:
                 _check_self_approach(nodes, width, cfg.max_self_approach, side)
         return _Side(nodes, curve, width, int(np.count_nonzero(mask)), (hsv, gate, mask, offset) if learn else None,
                      crop, offset, edges, steps)
+
+    def _check_ends_in_view(self, ends: np.ndarray, side: str) -> None:
+        """Raise where the silhouette's tip, or a free base, ends at the edge of what the camera saw:
+        the arm goes on out of view, and the tube fitted to what is in view ended there, valid and
+        12-34 mm short (benchmarks/unseen_scenes.py, seeds 71 and 73: an arm hanging out of the
+        bottom of the image). ``ends``: (2, 2) base and tip, rectified canvas pixels."""
+        margin = self._rect.view_margin_px(side)
+        h, w = margin.shape
+        names = ("tip",) if self.config.base_mount else ("base", "tip")
+        for name in names:
+            x, y = ends[0 if name == "base" else 1]
+            if not (np.isfinite(x) and np.isfinite(y)):
+                continue
+            u, v = min(max(int(round(x)), 0), w - 1), min(max(int(round(y)), 0), h - 1)
+            if margin[v, u] <= VIEW_EDGE_PX:
+                raise _NoArmError(f"the {name} is out of view in the {side} image: the arm runs on past the "
+                                  "image's edge there")
 
     def _trace(self, mask: np.ndarray, samples: np.ndarray, offset: np.ndarray, side: str,
                warm: np.ndarray | None, timings: dict,
