@@ -231,6 +231,11 @@ class _TooLongError(_NoArmError):
     """The estimate is longer than the arm can be: something past its tip may have been taken for it."""
 
 
+class _OutOfViewError(_NoArmError):
+    """The silhouette's end runs to the edge of the view: the arm goes on out of it, or something past
+    its tip (joined to it across a gap) does."""
+
+
 @dataclass
 class _Side:
     """What one image contributes: ordered nodes and, in default mode, the refined curve."""
@@ -373,10 +378,11 @@ class CenterlineEstimator:
             else:
                 try:
                     points, uv_left_rect, uv_right_rect = self._reconstruct_dense(sides, timings)
-                except _TooLongError as too_long:
-                    # Too long: an arm-coloured thing in line past the tip, across a gap, taken for
-                    # the arm's end (an orange box on a shelf). Without the silhouette's last piece in
-                    # both images the frame is judged again; where that fails, as first judged.
+                except (_TooLongError, _OutOfViewError) as too_long:
+                    # Too long, or running out of view: an arm-coloured thing in line past the tip,
+                    # across a gap, taken for the arm's end (an orange box on a shelf). Without the
+                    # silhouette's last piece in both images the frame is judged again; where that
+                    # fails, as first judged.
                     trimmed = self._without_last_piece(sides)
                     if trimmed is None:
                         raise
@@ -520,7 +526,6 @@ class CenterlineEstimator:
             if cfg.tube_fit:
                 with _timed(timings, "edges"):
                     edges = _silhouette_edges(crop, mask, curve, offset)
-                self._check_ends_in_view(edges[3], side)
                 if cfg.deblur:
                     with _timed(timings, "blur"):
                         steps = _raw_steps(raw, curve, offset, edges, deblurred=crop is not raw)
@@ -546,8 +551,8 @@ class CenterlineEstimator:
                 continue
             u, v = min(max(int(round(x)), 0), w - 1), min(max(int(round(y)), 0), h - 1)
             if margin[v, u] <= VIEW_EDGE_PX:
-                raise _NoArmError(f"the {name} is out of view in the {side} image: the arm runs on past the "
-                                  "image's edge there")
+                raise _OutOfViewError(f"the {name} is out of view in the {side} image: the arm runs on past the "
+                                      "image's edge there")
 
     def _trace(self, mask: np.ndarray, samples: np.ndarray, offset: np.ndarray, side: str,
                warm: np.ndarray | None, timings: dict,
@@ -916,6 +921,7 @@ class CenterlineEstimator:
             if sides[side].edges is None:
                 raise _NoArmError(f"no silhouette edges measured in the {side} image")
             points, centres, widths, (base, tip), outlines, seen_connectors = sides[side].edges
+            self._check_ends_in_view(np.array([base, tip]), side)
             connector_views.append(seen_connectors)
             xy.append((points - centre) / f)
             steps.append(widths)
