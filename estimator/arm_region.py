@@ -225,7 +225,8 @@ def trace_tubes(mask: np.ndarray, base_hint: tuple[float, float] | None, min_are
     distance = cv2.distanceTransform((mask > 0).astype(np.uint8), cv2.DIST_L2, 3)
     branches = [b for b in _branches(points, adjacency) if len(b) >= 2]
     typical_half = float(np.median(distance[points[:, 1].astype(int), points[:, 0].astype(int)]))
-    points, adjacency, branches, stones = with_stepping_stones(mask, points, adjacency, branches, typical_half)
+    points, adjacency, branches, stones = with_stepping_stones(mask, points, adjacency, branches, typical_half,
+                                                               distance)
     degree = np.array([len(a) for a in adjacency])
     reaches = end_reaches(mask, points, branches, adjacency, span=max(4, int(4 * typical_half)),
                           min_length=2.0 * typical_half)

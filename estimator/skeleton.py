@@ -135,7 +135,7 @@ STONE_HALF = 0.5  # a skeleton-less piece whose half width is at least this shar
 
 
 def with_stepping_stones(mask: np.ndarray, points: np.ndarray, adjacency: list[list[int]],
-                         branches: list[list[int]], half_px: float
+                         branches: list[list[int]], half_px: float, distance: np.ndarray | None = None
                          ) -> tuple[np.ndarray, list[list[int]], list[list[int]], set[int]]:
     """The skeleton graph with a short branch through each piece of the mask that thinning left
     without one: a stretch of the tube about as long as it is wide, cut out between an occluder
@@ -145,7 +145,7 @@ def with_stepping_stones(mask: np.ndarray, points: np.ndarray, adjacency: list[l
     Each such piece at least ``STONE_HALF`` of ``half_px`` thick (not a speck) gets a two-point
     branch through its centroid along its longer axis. Returns (points, adjacency, branches, the
     indices of the branches added); the added points have no neighbours, so a walk reaches and
-    leaves them only across gaps.
+    leaves them only across gaps. ``distance``: the mask's distance transform, where already made.
     """
     count, labels, stats, centroids = cv2.connectedComponentsWithStats((mask > 0).astype(np.uint8), connectivity=8)
     if count <= 1:
@@ -155,7 +155,8 @@ def with_stepping_stones(mask: np.ndarray, points: np.ndarray, adjacency: list[l
         if len(b) >= 2:
             at = points[b].astype(int)
             covered[labels[at[:, 1], at[:, 0]]] = True
-    distance = cv2.distanceTransform((mask > 0).astype(np.uint8), cv2.DIST_L2, 3)
+    if distance is None:
+        distance = cv2.distanceTransform((mask > 0).astype(np.uint8), cv2.DIST_L2, 3)
     new_points, new_branches = [], []
     for k in np.flatnonzero(~covered[1:]) + 1:
         x, y, w, h, _ = stats[k]
