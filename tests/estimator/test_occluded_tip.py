@@ -58,9 +58,11 @@ def _estimate(shape: str, lab: Lab):
 # or the cable is taken in past the tip and the arm comes out longer than it can be (straight, the
 # cable along the whole arm in one image: 812 mm for the 685 mm arm since the 1.15 length bound), or the
 # fitted tip misses the outline the cable lent its edge to (s_curve since the fifteenth session's cap model,
-# whose silhouette lines end at the cap: valid 8.4 mm off before).
+# whose silhouette lines end at the cap: valid 8.4 mm off before), or the tip's edges beside the cable are
+# left out and too few remain to place its end along the arm (s_curve since the twenty-first session,
+# which leaves out the whole stretch the cable lends its edge to).
 HONEST_REASONS = ("follows neither side", "the tip is hidden", "implausible estimate",
-                  "the fitted tip misses its outline")
+                  "the fitted tip misses its outline", "standard deviation along the arm")
 
 
 def _honest(result, score) -> bool:
