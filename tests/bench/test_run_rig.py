@@ -99,7 +99,7 @@ def test_a_failing_estimate_is_recorded_and_the_run_goes_on(rig_folder, board, m
 def test_a_repeated_pair_is_estimated_warm_as_it_was_cold():
     calibration = small_calibration(WIDTH, HEIGHT)
     left, right, _ = draw_pair(calibration, arm_polyline_m())
-    estimator = CenterlineEstimator(calibration, EstimatorConfig(mode="default"))
+    estimator = CenterlineEstimator(calibration, EstimatorConfig(mode="default", base_mount=True))  # as the rig's
     results = [estimator.estimate(left, right) for _ in range(3)]
     assert all(r.valid for r in results), [r.reason for r in results]
 

@@ -7,10 +7,10 @@ depth of such a tip, and the tube fit started there can settle in the wrong vall
 drawn by ``tests.scenes``, not the twin): seed 31's lab frame 10 comes back valid 20 mm off without the
 rule, seed 11's lab frame 11, a tip along the rows pointing at the camera, 8.7 mm off. Both are refused
 and tracked on. (Seed 38's lab frame 11, 24 mm off without it when the rule came, is refused as 824 mm
-long since the cold search's mask keeps the tip's end: the twenty-first session.) (The rule's first frames, seed 17's and seed 13's dim frames 10, 31 and 23 mm off
-without it, are now valid 1.5 mm off and refused for their tip's standard deviation: since the
-eighteenth session the frame before the first is tracked, and the dim gate keeps the second's last
-section.)
+long since the cold search's mask keeps the tip's end: the twenty-first session. The rule's first
+frames, seed 17's and seed 13's dim frames 10, 31 and 23 mm off without it, are now valid 1.5 mm off
+and refused for their tip's standard deviation: since the eighteenth session the frame before the
+first is tracked, and the dim gate keeps the second's last section.)
 """
 
 from __future__ import annotations
