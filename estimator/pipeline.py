@@ -119,7 +119,7 @@ MAX_MISFIT_TIP_STD_M = 0.008
 # over 2,285 such valid frames of benchmarks/unseen_scenes.py (seeds 10-21, 30-77) the base's error
 # passed 1.65 of it in one frame in ten and 3.2 in one in a hundred (the tip's: 1.1 and 2.3). Six
 # came back valid 10.5-15.9 mm off at the base with 4.8-7.9 mm. Held to 5 mm, five of them are
-# refused (all blurred) with 29 others of 4,320 (17 of them blurred, 2-9 mm off), tracked on; at
+# refused (all blurred) with 29 others of 4,320 (12 of them blurred; 0.8-9.7 mm off), tracked on; at
 # 4.5 mm the sixth too, but with 59 others. The twin's arm hangs from its mount, which holds the base.
 MAX_FREE_BASE_STD_M = 0.005
 # An outline missed by more than 2.5 times that noise is not explained well enough to place the tip

@@ -66,7 +66,7 @@ CONNECTOR_SIGMA_PX = 0.2  # a connector's centre along the tube, from the dip of
 MISFIT_WINDOW = 8  # consecutive edges of one silhouette line (about a tube width of arc)
 MISFIT_SIGMAS = 4.0  # their mean residual beyond this many sigmas: that stretch of line is not the tube's
 # An occluder's edge that lies along the tube is often blurred against it (a dark cable's shading):
-# its steps are wide, so its edges weigh little and a stretch of them 3.4 px off measured under 4 sigmas
+# its steps are wide, so its edges weigh little and a stretch of them 3.5 px off measured under 4 sigmas
 # while it held a tube 39 mm off in depth (benchmarks/unseen_scenes.py, seed 76, occluded). A window
 # whose mean lies beyond MISFIT_PX pixels (and MISFIT_GROW_SIGMAS) is flagged too, and a flagged window
 # grows along its line while its neighbours' means stay beyond MISFIT_GROW_SIGMAS on its side: the
