@@ -15,8 +15,10 @@ first is tracked, and the dim gate keeps the second's last section.)
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
+import estimator
 from tests.unseen_draws import false_valid, tracked
 
 
@@ -30,3 +32,17 @@ def test_a_tip_that_fits_as_well_at_another_depth_is_refused_and_tracked_on(seed
     assert estimator._warm_fit is not None  # tracked on
     assert false_valid(results[:-1]) == []
     assert sum(result.valid for result, _ in results[:-1]) >= valid_before
+
+
+def test_its_restarts_decide_alike_on_one_thread_and_on_two():
+    """The two restarts run side by side on the second thread; on one thread (a study's worker) they run
+    one after the other, and every frame comes out the same."""
+    estimator.use_second_thread(False)
+    try:
+        _, alone = tracked(31, "lab", 10)
+    finally:
+        estimator.use_second_thread(True)
+    _, beside = tracked(31, "lab", 10)
+    assert [result.reason for result, _ in alone] == [result.reason for result, _ in beside]
+    for (one, _), (two, _) in zip(alone, beside, strict=True):
+        assert np.array_equal(one.points, two.points)
