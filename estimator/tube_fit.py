@@ -898,7 +898,7 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
              initial_control: np.ndarray | None = None,
              tip_outline: dict[int, np.ndarray] | None = None, initial_radii: np.ndarray | None = None,
              connectors: np.ndarray | None = None, connector_radius_m: float = 0.0, iterations: int = ITERATIONS,
-             base_outline: dict[int, np.ndarray] | None = None, _staged: bool = False) -> TubeFit | None:
+             base_outline: dict[int, np.ndarray] | None = None, outline_stage: bool = False) -> TubeFit | None:
     """Fit the tube to the edges of both images.
 
     Args:
@@ -923,6 +923,8 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
             the nearest of the rim and the sides: from a tip far off, to the wrong one).
         initial_radii: radii to start from (default: the prior).
         base_outline: the same for the base, where it is a free end (not a mount's face).
+        outline_stage: fit to the outlines from the start given (``initial_control``, ``initial_radii``),
+            without the first stage that places the ends by their single end points.
         connectors: (K, 2, 2) the centres of the bands the connectors between sections make along
             the tube's image, in the left (``[:, 0]``) and the right (``[:, 1]``) image (normalised),
             base first: one place on the axis each, seen from both cameras, so they give its
@@ -934,7 +936,7 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
         The fit, or None when it cannot be set up (too few edges, degenerate initial curve).
     """
     outlines = {"tip": tip_outline or {}, "base": base_outline or {}}
-    if not _staged and any(len(v) >= MIN_CAP_POINTS for end in outlines.values() for v in end.values()):
+    if not outline_stage and any(len(v) >= MIN_CAP_POINTS for end in outlines.values() for v in end.values()):
         first = fit_tube(edges, ends, initial_points, radius_prior, radius_sigma, focal_px=focal_px,
                          baseline_m=baseline_m, cap=cap, control_points=control_points, base_prior=base_prior,
                          initial_control=initial_control, initial_radii=initial_radii, connectors=connectors,
@@ -948,7 +950,7 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
                             initial_control=start, tip_outline=dict(outlines["tip"]),
                             initial_radii=first.radius_bins, connectors=connectors,
                             connector_radius_m=connector_radius_m, iterations=OUTLINE_ITERATIONS,
-                            base_outline=dict(outlines["base"]), _staged=True)
+                            base_outline=dict(outlines["base"]), outline_stage=True)
 
         fit = outline_stage(first.control)
         restart = _base_restart(fit, first.control, initial_points, outlines["base"])
@@ -1071,7 +1073,7 @@ def fit_tube(edges: EdgeSet, ends: dict[str, np.ndarray], initial_points: np.nda
                 us[len(us) - 2 * n_connectors:] = attach_connectors(control)
             bins = radius_bins(knots, control, us, len(radii))
             bases = _bases(knots, count, us)
-        if iteration + 1 == REDESCEND_AFTER or (_staged and iteration == 0):
+        if iteration + 1 == REDESCEND_AFTER or (outline_stage and iteration == 0):
             loss = -HUBER_PX
         cost, residuals, A, g = system(True)
         if damping > 1e6 or converged:
