@@ -14,7 +14,9 @@ first is tracked, and the dim gate keeps the second's last section.)
 
 Seed 98's warm frame 10 (a seventh seed set, drawn in the twenty-second session) came back valid 30.9 mm
 off: restarted with both stages of the fit, the tube falls back into the same basin; restarted with the
-outline stage alone, it ends near the truth at a lower cost. It is refused and tracked on.
+outline stage alone, it ends near the truth at a lower cost. It is refused and tracked on. Those
+restarts count only where they end lower in cost: seed 19's dim frame 5, right (1.6 mm), has one 1.7
+higher with its tip 21 mm away, and stays valid.
 """
 
 from __future__ import annotations
@@ -68,3 +70,12 @@ def test_without_the_outline_stage_restarts_that_tip_is_valid_far_off(monkeypatc
     _, results = tracked(98, "warm", 10)
     last, truth = results[-1]
     assert last.valid and worst_mm(last, truth) > 25.0  # measured 30.9 mm: what the test above guards against
+
+
+def test_an_outline_stage_restart_ending_higher_in_cost_leaves_the_tip_measured():
+    """Counted within 3 of the cost, that restart refused this good frame (and four more of 5,040)."""
+    _, results = tracked(19, "dim", 5)
+    last, truth = results[-1]
+    assert last.valid, last.reason
+    assert worst_mm(last, truth) < 5.0  # measured 1.6 mm
+    assert false_valid(results) == []
