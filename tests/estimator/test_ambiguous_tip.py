@@ -7,7 +7,8 @@ their tips more than ``AMBIGUOUS_TIP_M`` apart, the images do not say where the 
 refused and tracked on. The scene is drawn by ``tests.scenes`` (benchmarks/unseen_scenes.py, seed 11,
 blur, frames 0-10), not the twin (``tests.unseen_draws``). Since the twenty-second session the depth
 ambiguity's restarts of the outline stage alone refuse the same frame too (and their reason replaces
-this one's); the rule is tested here with them switched off.
+this one's); the rule is tested here with them, and the refusal of a restart ending lower in cost
+(twenty-third session), switched off.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ def test_the_frame_is_refused_by_either_rule():
 
 def test_a_tip_two_equally_good_fits_put_far_apart_is_refused_and_tracked_on(monkeypatch):
     monkeypatch.setattr(pipeline, "OUTLINE_RESTART_AMBIGUOUS_COST", -math.inf)
+    monkeypatch.setattr(pipeline, "BETTER_RESTART_TIP_M", math.inf)
     estimator, results = tracked(11, "blur", 10)
     last, _ = results[-1]
     assert not last.valid  # before: valid, the tip 24 mm off

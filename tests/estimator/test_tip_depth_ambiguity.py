@@ -17,6 +17,11 @@ off: restarted with both stages of the fit, the tube falls back into the same ba
 outline stage alone, it ends near the truth at a lower cost. It is refused and tracked on. Those
 restarts count only where they end lower in cost: seed 19's dim frame 5, right (1.6 mm), has one 1.7
 higher with its tip 21 mm away, and stays valid.
+
+A restart of either kind that ends lower in cost with its tip more than ``BETTER_RESTART_TIP_M`` (8 mm)
+away refuses the frame too (twenty-third session): seed 98's warm frame 8 came back valid 13.6 mm off
+with a both-stage restart 1.5 lower and 13.5 mm away (under the 15 mm of ``AMBIGUOUS_TIP_M``), seed
+82's lab frame 5 valid 11.5 mm off with one 2.6 lower and 9.0 mm away.
 """
 
 from __future__ import annotations
@@ -67,6 +72,7 @@ def test_a_tip_the_outline_stage_alone_puts_elsewhere_is_refused_and_tracked_on(
 
 def test_without_the_outline_stage_restarts_that_tip_is_valid_far_off(monkeypatch):
     monkeypatch.setattr(pipeline, "OUTLINE_RESTART_AMBIGUOUS_COST", -math.inf)
+    monkeypatch.setattr(pipeline, "BETTER_RESTART_TIP_M", math.inf)
     _, results = tracked(98, "warm", 10)
     last, truth = results[-1]
     assert last.valid and worst_mm(last, truth) > 25.0  # measured 30.9 mm: what the test above guards against
@@ -79,3 +85,21 @@ def test_an_outline_stage_restart_ending_higher_in_cost_leaves_the_tip_measured(
     assert last.valid, last.reason
     assert worst_mm(last, truth) < 5.0  # measured 1.6 mm
     assert false_valid(results) == []
+
+
+@pytest.mark.parametrize(("seed", "condition", "frame"), [(98, "warm", 8), (82, "lab", 5)])
+def test_a_restart_ending_lower_in_cost_with_the_tip_elsewhere_refuses_the_frame(seed, condition, frame):
+    estimator_, results = tracked(seed, condition, frame)
+    last, _ = results[-1]
+    assert not last.valid
+    assert "fits as well or better" in last.reason
+    assert estimator_._warm_fit is not None  # tracked on
+    assert false_valid(results[:-1]) == []
+
+
+@pytest.mark.parametrize(("seed", "condition", "frame"), [(98, "warm", 8), (82, "lab", 5)])
+def test_without_that_refusal_those_tips_are_valid_over_10_mm_off(monkeypatch, seed, condition, frame):
+    monkeypatch.setattr(pipeline, "BETTER_RESTART_TIP_M", math.inf)
+    _, results = tracked(seed, condition, frame)
+    last, truth = results[-1]
+    assert last.valid and worst_mm(last, truth) > 10.0  # measured 13.6 and 11.5 mm
