@@ -85,12 +85,18 @@ def test_every_frame_is_recorded_with_truth_scores_and_images(sim_run):
     assert run.skipped == [] and run.summary_note is None  # every line a valid record; summary.json agrees
     schedule = run.config["schedule"]
     np.testing.assert_allclose([f.t_s for f in run.frames], np.linspace(0, 58, FRAMES), atol=1e-6)
+    # t = 51.9 s (4.0 mm off at most) is refused since the twenty-third session: a restart of its tip's
+    # depth ends lower in cost with the tip 11 mm away (BETTER_RESTART_TIP_M); every other frame is valid.
+    assert [round(f.t_s, 1) for f in run.frames if not f.main.valid] in ([], [51.9])
     for f in run.frames:
         assert len(f.gt_m) >= 100 and np.asarray(f.gt_m).shape[1] == 3
         m = f.main
-        assert m.valid and len(m.points_m) == 20 and len(m.left_uv) == 20 and len(m.right_uv) == 20
         assert {"rectify", "segment", "total"} <= set(m.timings_ms)
-        assert m.errors["rmse_mm"] > 0 and m.qprime["count"] > 0
+        if m.valid:
+            assert len(m.points_m) == 20 and len(m.left_uv) == 20 and len(m.right_uv) == 20
+            assert m.errors["rmse_mm"] > 0 and m.qprime["count"] > 0
+        else:  # recorded with its reason, no points and no scores; the rest of the record as any frame's
+            assert m.reason and len(m.points_m) == 0 and m.errors is None and m.qprime is None
         assert f.paper.mode == "paper" and f.paper.errors is not None
         assert set(f.commanded_bar) == set(run.config["valves"]["channels"])
         # the commanded pressures are the schedule's at that time; the chambers follow with the valve lag
