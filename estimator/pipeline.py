@@ -1174,7 +1174,8 @@ class CenterlineEstimator:
         lower in cost than the first fit (``OUTLINE_RESTART_AMBIGUOUS_COST``, 0): over the seven unseen
         seed sets, counted within ``AMBIGUOUS_COST`` they refused 16 good frames for that one, within 3,
         7 (1.6-6.3 mm off), five of which had a restart 1.3-1.7 higher with the tip 15-25 mm away (a
-        flat valley, the frame right); at 0, two (and the twin's lab ramp two, t = 49.8 and 49.9 s).
+        flat valley, the frame right); at 0, two (and on the twin's paper ramp, ``softarm run``, t = 49.8
+        and 49.9 s).
         """
         count = len(fit.control)
         first = (2 * count) // 3
