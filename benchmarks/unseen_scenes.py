@@ -2,6 +2,7 @@
 
     python benchmarks/unseen_scenes.py                 # 12 sequences of 12 frames, 6 conditions (about 5 min)
     python benchmarks/unseen_scenes.py --sequences 4   # a quicker pass
+    python benchmarks/unseen_scenes.py --rows rows.csv # and every frame's outcome, with its reason
 
 The twin's studies measure the estimator on the renderer its development ran against. This script
 draws arms with another renderer (tests/scenes.py: its own rasteriser, the raw ZED-like pair with
@@ -129,16 +130,31 @@ def _run_sequence(args: tuple[int, int]) -> list[tuple[str, int, int, bool, floa
     return rows
 
 
+def _write_rows(path: Path, rows: list[tuple]) -> None:
+    """Every frame's outcome as CSV, one line per condition, seed and frame."""
+    import csv
+
+    with path.open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["condition", "seed", "frame", "valid", "rmse_mm", "worst_mm", "reason"])
+        for name, seed, frame, valid, rmse, worst, reason in rows:
+            writer.writerow([name, seed, frame, int(valid), f"{rmse:.3f}", f"{worst:.3f}", reason])
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sequences", type=int, default=12, help="random arms (default 12)")
     parser.add_argument("--frames", type=int, default=12, help="frames per sequence (default 12)")
     parser.add_argument("--first-seed", type=int, default=10, help="seed of the first sequence (default 10)")
     parser.add_argument("--workers", type=int, default=2, help="sequences drawn and tracked at once (default 2)")
+    parser.add_argument("--rows", type=Path, help="write every frame's outcome here (CSV: condition, seed, frame, "
+                        "valid, rmse_mm, worst_mm, reason), to see what the refusals are")
     args = parser.parse_args(argv)
     jobs = [(args.first_seed + k, args.frames) for k in range(args.sequences)]
     with ProcessPoolExecutor(max_workers=args.workers) as pool:
         rows = [row for rows in pool.map(_run_sequence, jobs) for row in rows]
+    if args.rows is not None:
+        _write_rows(args.rows, rows)
     print(f"Unseen lab scenes (tests/scenes.py): {args.sequences} sequences x {args.frames} frames, seeds "
           f"{args.first_seed}-{args.first_seed + args.sequences - 1}, default EstimatorConfig(), tracked\n")
     print(f"{'condition':<10} {'valid':>9} {'false valid':>12} {'RMSE mm':>8}")
