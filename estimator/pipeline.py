@@ -1091,7 +1091,8 @@ class CenterlineEstimator:
             measured[-1] = False  # an image saw no end of the tip
         if sum(len(outline) >= MIN_CAP_POINTS for outline in base_outline.values()) == len(SIDES):
             measured[0] = True  # so was a free base's end
-        bridged = _longest_run(~measured, points)
+        bridged = _longest_unseen(edge_u, edge_side, MEASURED_GAP_RADII * radius / max(arc[-1], 1e-9), tip_seen,
+                                  us, arc)
         if bridged > cfg.max_bridge_widths * 2.0 * radius:
             raise _NoArmError(f"{bridged * 1e3:.0f} mm of the arm bridged without its edges in both images "
                               f"(more than {cfg.max_bridge_widths:g} arm widths: occluded or out of view)")
@@ -1684,17 +1685,9 @@ def _measured(at: np.ndarray, edge_u: np.ndarray, edge_side: np.ndarray, gap_u: 
     occluded stretch is bridged, even next to its edge.
     """
     out = np.ones(len(at), bool)
-    for side in (0, 1):
-        u = np.sort(edge_u[edge_side == side])
-        if len(u) == 0:
-            return np.zeros(len(at), bool)
-        if not tip_seen[side]:
-            u = u[u < 1.0 - 1e-9]  # edges past the tube's end attach to it; without the tip they end nothing
-            if len(u) == 0:
-                return np.zeros(len(at), bool)
-        bounds = np.concatenate([[0.0], u, [1.0 if tip_seen[side] else np.inf]])
-        i = np.searchsorted(u, at)  # at lies in (bounds[i], bounds[i + 1])
-        out &= (bounds[i + 1] - bounds[i]) <= gap_u
+    for lo, hi in _unseen_stretches(edge_u, edge_side, gap_u, tip_seen):
+        # an output point on the edge bounding a stretch is measured; the arm's ends bound none
+        out &= ~(((at > lo) | (lo <= 0.0)) & ((at < hi) | (hi >= 1.0)))
     return out
 
 
@@ -1773,18 +1766,36 @@ def _end_run(flags: np.ndarray, points: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(points[:stop + 1], axis=0), axis=1).sum())
 
 
-def _longest_run(flags: np.ndarray, points: np.ndarray) -> float:
-    """Longest 3D length spanned by consecutive flagged points (with the gaps to their neighbours)."""
-    best, start = 0.0, None
-    step = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    for i, flag in enumerate(np.append(flags, False)):
-        if flag and start is None:
-            start = i
-        elif not flag and start is not None:
-            lo, hi = max(start - 1, 0), min(i, len(points) - 1)
-            best = max(best, float(step[lo:hi].sum()))
-            start = None
-    return best
+def _unseen_stretches(edge_u: np.ndarray, edge_side: np.ndarray, gap_u: float,
+                      tip_seen: tuple[bool, bool] = (True, True)) -> list[tuple[float, float]]:
+    """The stretches of u (merged over both images) that either image shows without edges for
+    longer than ``gap_u``: the same stretches ``_measured`` marks its points bridged in, but with
+    their ends where the edges stop, not where the output points happen to fall."""
+    stretches = []
+    for side in (0, 1):
+        u = np.sort(edge_u[edge_side == side])
+        if not tip_seen[side]:
+            u = u[u < 1.0 - 1e-9]  # edges past the tube's end attach to it; without the tip they end nothing
+        bounds = np.concatenate([[0.0], u, [1.0 if tip_seen[side] else np.inf]])
+        wide = np.diff(bounds) > gap_u
+        stretches += [(lo, min(hi, 1.0)) for lo, hi in zip(bounds[:-1][wide], bounds[1:][wide])]
+    merged: list[tuple[float, float]] = []
+    for lo, hi in sorted(stretches):
+        if merged and lo <= merged[-1][1]:
+            merged[-1] = (merged[-1][0], max(merged[-1][1], hi))
+        else:
+            merged.append((lo, hi))
+    return merged
+
+
+def _longest_unseen(edge_u: np.ndarray, edge_side: np.ndarray, gap_u: float, tip_seen: tuple[bool, bool],
+                    us: np.ndarray, arc: np.ndarray) -> float:
+    """Longest 3D length of arm (``arc`` the arc length at tube parameters ``us``) in a stretch
+    either image shows without edges. Measured from edge to edge: counted in output points, one
+    occluder 3 arm widths wide read as anything from 3 to 5 depending on where the points fell."""
+    lengths = [np.interp(hi, us, arc) - np.interp(lo, us, arc)
+               for lo, hi in _unseen_stretches(edge_u, edge_side, gap_u, tip_seen)]
+    return float(max(lengths, default=0.0))
 
 
 def _extended(curve: np.ndarray, length: float) -> np.ndarray:
