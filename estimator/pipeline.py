@@ -1778,7 +1778,7 @@ def _unseen_stretches(edge_u: np.ndarray, edge_side: np.ndarray, gap_u: float,
             u = u[u < 1.0 - 1e-9]  # edges past the tube's end attach to it; without the tip they end nothing
         bounds = np.concatenate([[0.0], u, [1.0 if tip_seen[side] else np.inf]])
         wide = np.diff(bounds) > gap_u
-        stretches += [(lo, min(hi, 1.0)) for lo, hi in zip(bounds[:-1][wide], bounds[1:][wide])]
+        stretches += [(lo, min(hi, 1.0)) for lo, hi in zip(bounds[:-1][wide], bounds[1:][wide], strict=True)]
     merged: list[tuple[float, float]] = []
     for lo, hi in sorted(stretches):
         if merged and lo <= merged[-1][1]:
