@@ -27,7 +27,7 @@ import numpy as np
 STEP_PX = 0.5  # sampling step along the normal
 SEARCH_PX = 3.0  # how far from the mask's edge the intensity edge may lie
 LEVEL_PX = 2.5  # the inside and outside levels are read over this span, just beyond the search window
-CHROMA_WEIGHT = 1.0  # weight of Cb, Cr against luma in the profile (0.35 before 2026-12-02: see the README)
+CHROMA_WEIGHT = 1.0  # weight of Cb, Cr against luma in the profile (0.35 before 2026-12-02: benchmarks/MEASUREMENTS.md)
 MIN_CONTRAST = 12.0  # weighted units (about digital numbers of luma): below it, no edge
 AREA_WINDOW_PX = 1.5  # half the window of the area step; 0 keeps the interpolated crossing
 MAX_BLUR_PX = 6.0  # how wide a blurred step may be for its levels to be read beyond it

@@ -178,7 +178,7 @@ def _blurred(image: np.ndarray, blur: str) -> np.ndarray:
 # as much as luma (CHROMA_WEIGHT 1.0, 2026-12-02; at 0.35 before, in brackets): grey 0.098 (0.085)
 # crisp / 0.16 (0.15) Gaussian / 0.25 (0.27) px box; light 0.083 (0.03) / 0.17 (0.08) / 0.22 (0.14) px;
 # dark 0.045 / 0.07 / 0.13 (all <= 0.05) px. The weight went up for the lab scenes' textured walls
-# (README, "Chroma counts as much as luma"); the two cases it moved over the line are marked here.
+# (benchmarks/MEASUREMENTS.md, "Chroma counts as much as luma"); the two cases it moved over the line are marked here.
 YUYV_CHROMA_BIAS = {
     ("grey", "gaussian_1.5"): "0.16 px", ("grey", "box_9"): "0.25 px", ("light", "gaussian_1.5"): "0.17 px",
     ("light", "box_9"): "0.22 px", ("dark", "box_9"): "0.13 px"}
