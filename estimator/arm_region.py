@@ -217,10 +217,10 @@ def _carried_on(end: np.ndarray, direction: np.ndarray, gate: np.ndarray, distan
     return np.zeros((0, 2))
 
 
-def _trace(points: np.ndarray, adjacency: list[list[int]], branches: list[list[int]], distance: np.ndarray,
-           start: tuple[int, bool], reaches: dict[int, float] | None = None) -> Trace:
+def _walk(points: np.ndarray, adjacency: list[list[int]], branches: list[list[int]], distance: np.ndarray,
+          start: tuple[int, bool], reaches: dict[int, float] | None = None) -> list[int]:
     """Walk from a skeleton end: at each junction or gap the least-bending branch of about the
-    tube's width; a branch that widens (a distractor the tube touches) ends the walk there."""
+    tube's width (indices into ``points``, starting with the start branch)."""
     from estimator.skeleton import least_bending_walk
 
     def half_of(ids):
@@ -232,6 +232,11 @@ def _trace(points: np.ndarray, adjacency: list[list[int]], branches: list[list[i
                               gap_px=GAP_WIDTHS * 2.0 * half, sideways_px=SIDEWAYS_WIDTHS * 2.0 * half,
                               keep=lambda c: 0.5 <= half_of(c) / max(half, 1e-9) <= 2.0, turn_back=False,
                               reaches=reaches, usual_reach=half)
+    return path
+
+
+def _as_trace(points: np.ndarray, path: list[int], distance: np.ndarray) -> Trace:
+    """A walk as a trace; a branch that widens (a distractor the tube touches) ends it there."""
     ids = np.array(path)
     values = distance[points[ids, 1].astype(int), points[ids, 0].astype(int)]
     half = float(np.median(values))
@@ -256,20 +261,33 @@ MAX_SKELETON_PX = 3000  # a coarse mask with more skeleton than this is a wall o
 MAX_STARTS = 8  # skeleton ends tried as the base, nearest the base hint (or the top) first
 
 
-def trace_tubes(mask: np.ndarray, base_hint: tuple[float, float] | None, min_area_px: int) -> list[Trace]:
+def trace_tubes(mask: np.ndarray, base_hint: tuple[float, float] | None, min_area_px: int,
+                either_end: bool = False) -> list[Trace]:
     """Tube-like traces of a coarse mask, from the end nearest the base hint (or the top edge) first.
 
-    Returns no trace for a mask that is mostly one colour field (warm light on a wall): its
-    skeleton is a maze; the caller raises the saturation floor first.
+    ``either_end`` adds, after them, the traces of ``walked_and_turned``'s second list. Returns no
+    trace for a mask that is mostly one colour field (warm light on a wall): its skeleton is a maze;
+    the caller raises the saturation floor first.
+    """
+    walked, turned = walked_and_turned(mask, base_hint, min_area_px)
+    return walked + turned if either_end else walked
+
+
+def walked_and_turned(mask: np.ndarray, base_hint: tuple[float, float] | None,
+                      min_area_px: int) -> tuple[list[Trace], list[Trace]]:
+    """The tube-like traces of a coarse mask walked from its ends (nearest the base hint, or the top
+    edge, first), and the ones from the other end: where both ends of a piece of tube between two gaps
+    were walked from and each walk went on beyond it, the two joined through it; and each trace that
+    starts further from the hint than it ends, reversed. Both lists start at their end nearer the hint.
     """
     from estimator.skeleton import _branches, _neighbours, end_reaches, thin, with_stepping_stones
 
     skeleton = thin(mask)
     if np.count_nonzero(skeleton) > MAX_SKELETON_PX:
-        return []
+        return [], []
     points, adjacency = _neighbours(skeleton)
     if len(points) < 2:
-        return []
+        return [], []
     distance = cv2.distanceTransform((mask > 0).astype(np.uint8), cv2.DIST_L2, 3)
     branches = [b for b in _branches(points, adjacency) if len(b) >= 2]
     typical_half = float(np.median(distance[points[:, 1].astype(int), points[:, 0].astype(int)]))
@@ -285,14 +303,48 @@ def trace_tubes(mask: np.ndarray, base_hint: tuple[float, float] | None, min_are
     else:
         key = [float(np.linalg.norm(points[branches[bi][0 if first else -1]] - np.asarray(base_hint)))
                for bi, first in ends]
-    traces = []
     order = np.argsort(key, kind="stable")
     # ... and the end furthest from it: the walk from the tip crosses gaps the walk from the base stops at
-    for index in order[:MAX_STARTS] if len(order) <= MAX_STARTS else np.append(order[:MAX_STARTS], order[-1]):
-        trace = _trace(points, adjacency, branches, distance, ends[index], reaches)
+    started = order[:MAX_STARTS] if len(order) <= MAX_STARTS else np.append(order[:MAX_STARTS], order[-1])
+    walks = {ends[index]: _walk(points, adjacency, branches, distance, ends[index], reaches) for index in started}
+    joined = _joined_walks(walks, branches)
+
+    def flipped(trace):  # the trace from its other end, or None where it starts nearer the base hint (the top)
+        a, b = trace.path[0], trace.path[-1]
+        if base_hint is None:
+            ahead = a[1] <= b[1]
+        else:
+            ahead = np.linalg.norm(a - np.asarray(base_hint)) <= np.linalg.norm(b - np.asarray(base_hint))
+        return None if ahead else Trace(trace.path[::-1], trace.half_width, trace.consistency, trace.halves[::-1])
+
+    walked, turned = [], []
+    for path in [walks[ends[index]] for index in started]:
+        trace = _as_trace(points, path, distance)  # cut where it widens, in walking order
         if trace.tube_like and trace.half_width * trace.length * 2.0 >= min_area_px:
-            traces.append(trace)
-    return traces
+            walked.append(trace)
+            if len(trace.path) >= 2 and (other := flipped(trace)) is not None:
+                turned.append(other)
+    for path in joined:
+        trace = _as_trace(points, path, distance)
+        if trace.tube_like and trace.half_width * trace.length * 2.0 >= min_area_px and len(trace.path) >= 2:
+            turned.append(flipped(trace) or trace)
+    return walked, turned
+
+
+def _joined_walks(walks: dict[tuple[int, bool], list[int]], branches: list[list[int]]) -> list[list[int]]:
+    """Where both ends of one branch were walked from and each walk went on beyond the branch, the
+    two as one walk through it. A piece of tube between two gaps (a section between connectors)
+    walked from its upper end reaches the tip, from its lower end the base: neither alone is the arm,
+    when the base's own end starts no walk (pinholes in a dim section leave its skeleton loops
+    without a free end)."""
+    joined = []
+    for (bi, first), forward in walks.items():
+        backward = walks.get((bi, not first))
+        n = len(branches[bi])
+        if not first or backward is None or len(forward) <= n or len(backward) <= n:
+            continue
+        joined.append(backward[::-1] + forward[n:])
+    return joined
 
 
 def _stereo_match(left: Trace, right: Trace, geometry: TubeGeometry) -> bool:
@@ -327,21 +379,30 @@ def _covers(trace: Trace, other: Trace, shape: tuple[int, int]) -> bool:
     return not beyond.any() or float(np.median(trace.halves[beyond])) <= EXTENSION_WIDTHS * other.half_width
 
 
+def _ends_on_one_row(left: Trace, right: Trace) -> bool:
+    """The two traces also end on about the same row (rectified): a walk joined through a piece of
+    tube that ran on past the tip, into something beside it, ends where the other image's does not."""
+    return abs(left.path[-1][1] - right.path[-1][1]) <= max(1.5 * max(left.half_width, right.half_width), 3.0)
+
+
 def _fullest_match(left: Trace, right: Trace, lefts: list[Trace], rights: list[Trace], geometry: TubeGeometry,
-                   shape: tuple[int, int]) -> tuple[Trace, Trace]:
+                   shape: tuple[int, int], turned: tuple[list[Trace], list[Trace]] = ([], [])) -> tuple[Trace, Trace]:
     """Of the stereo pairs that run over the first match (``left``, ``right``: the tube reached from its
     base end) and stay about as wide beyond it (``_covers``), the one whose shorter trace is the longest.
     A walk may stop at a gap that the walk from the tip's end crosses: a slanted connector, wide where
     the arm comes towards the camera, past which the far section is drawn wider and turned. One
     image's trace then ended there and the other's did not (refused as a length mismatch), or both did
-    (refused as too short)."""
-    over_left = [t for t in lefts if t is left or _covers(t, left, shape)]
-    over_right = [t for t in rights if t is right or _covers(t, right, shape)]
+    (refused as too short). A pair with a trace of ``turned`` (the traces from their other ends,
+    ``walked_and_turned``) must also end on one row."""
+    extra = {id(t) for side in turned for t in side}
+    over_left = [t for t in lefts + turned[0] if t is left or _covers(t, left, shape)]
+    over_right = [t for t in rights + turned[1] if t is right or _covers(t, right, shape)]
     best, best_length = (left, right), min(left.length, right.length)
     for other_left in over_left:
         for other_right in over_right:
             length = min(other_left.length, other_right.length)
-            if length > best_length and _stereo_match(other_left, other_right, geometry):
+            if length > best_length and _stereo_match(other_left, other_right, geometry) and (
+                    not {id(other_left), id(other_right)} & extra or _ends_on_one_row(other_left, other_right)):
                 best, best_length = (other_left, other_right), length
     return best
 
@@ -353,10 +414,13 @@ def find_tube(masks: dict[str, np.ndarray], geometry: TubeGeometry,
     Each mask's skeleton is traced from its ends (the end nearest the base hint, or the top edge,
     first); the first left trace that is tube-like and has a right-image trace starting on the
     same row with a width fitting the configured radius at their disparity is the arm. Of each
-    mask, only what lies within the tube's reach of its trace is kept.
+    mask, only what lies within the tube's reach of its trace is kept. The traces from their other ends
+    (``walked_and_turned``) only extend a match of the walked ones (``_fullest_match``): on their own
+    they pair the walls of an over-exposed mask, where the walked ones find nothing and the caller
+    raises the saturation floor.
     """
-    lefts = trace_tubes(masks["left"], geometry.base_hint_px, min_area_px)
-    rights = trace_tubes(masks["right"], None, min_area_px)  # the hint is a left-image pixel
+    lefts, lefts_turned = walked_and_turned(masks["left"], geometry.base_hint_px, min_area_px)
+    rights, rights_turned = walked_and_turned(masks["right"], None, min_area_px)  # the hint is a left-image pixel
     radius = f"{geometry.radius_m * 1e3:.0f} mm"
     if not lefts or not rights:
         return None, (f"no arm found in the {'left' if not lefts else 'right'} image: nothing of the arm's colour "
@@ -365,7 +429,8 @@ def find_tube(masks: dict[str, np.ndarray], geometry: TubeGeometry,
     for left in lefts:
         for right in rights:
             if _stereo_match(left, right, geometry):
-                left, right = _fullest_match(left, right, lefts, rights, geometry, masks["left"].shape)
+                left, right = _fullest_match(left, right, lefts, rights, geometry, masks["left"].shape,
+                                             (lefts_turned, rights_turned))
                 return {"left": left.mask(masks["left"]), "right": right.mask(masks["right"])}, ""
             same_row = abs(left.path[0][1] - right.path[0][1]) <= max(2.0 * left.half_width, 3.0)
             shift = left.path[0][0] - right.path[0][0]  # the disparity of the tubes' first points
