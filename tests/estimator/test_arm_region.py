@@ -102,7 +102,7 @@ def test_the_walk_stops_at_a_distractor_touching_the_tip():
         assert np.count_nonzero(kept & box_only) <= 0.25 * np.count_nonzero(box_only), side
 
 
-@pytest.mark.xfail(strict=True, reason="estimator/arm_region.py _trace/Trace.mask: the walk runs on into the box "
+@pytest.mark.xfail(strict=True, reason="estimator/arm_region.py _walk/Trace.mask: the walk runs on into the box "
                                        "until the distance transform exceeds 1.6 half widths, and the kept corridor "
                                        "(1.3 half widths + 1 px around the path) then takes 207 of the box's 1226 "
                                        "pixels (17 %), up to 10 px (1.1 tube widths) beyond the arm's end")
