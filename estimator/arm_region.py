@@ -261,16 +261,13 @@ MAX_SKELETON_PX = 3000  # a coarse mask with more skeleton than this is a wall o
 MAX_STARTS = 8  # skeleton ends tried as the base, nearest the base hint (or the top) first
 
 
-def trace_tubes(mask: np.ndarray, base_hint: tuple[float, float] | None, min_area_px: int,
-                either_end: bool = False) -> list[Trace]:
+def trace_tubes(mask: np.ndarray, base_hint: tuple[float, float] | None, min_area_px: int) -> list[Trace]:
     """Tube-like traces of a coarse mask, from the end nearest the base hint (or the top edge) first.
 
-    ``either_end`` adds, after them, the traces of ``walked_and_turned``'s second list. Returns no
-    trace for a mask that is mostly one colour field (warm light on a wall): its skeleton is a maze;
-    the caller raises the saturation floor first.
+    Returns no trace for a mask that is mostly one colour field (warm light on a wall): its skeleton
+    is a maze; the caller raises the saturation floor first.
     """
-    walked, turned = walked_and_turned(mask, base_hint, min_area_px)
-    return walked + turned if either_end else walked
+    return walked_and_turned(mask, base_hint, min_area_px)[0]
 
 
 def walked_and_turned(mask: np.ndarray, base_hint: tuple[float, float] | None,
@@ -317,17 +314,14 @@ def walked_and_turned(mask: np.ndarray, base_hint: tuple[float, float] | None,
             ahead = np.linalg.norm(a - np.asarray(base_hint)) <= np.linalg.norm(b - np.asarray(base_hint))
         return None if ahead else Trace(trace.path[::-1], trace.half_width, trace.consistency, trace.halves[::-1])
 
-    walked, turned = [], []
-    for path in [walks[ends[index]] for index in started]:
-        trace = _as_trace(points, path, distance)  # cut where it widens, in walking order
-        if trace.tube_like and trace.half_width * trace.length * 2.0 >= min_area_px:
-            walked.append(trace)
-            if len(trace.path) >= 2 and (other := flipped(trace)) is not None:
-                turned.append(other)
-    for path in joined:
+    def kept(path):  # the walk cut where it widens, in walking order, if it is tube-like and big enough
         trace = _as_trace(points, path, distance)
-        if trace.tube_like and trace.half_width * trace.length * 2.0 >= min_area_px and len(trace.path) >= 2:
-            turned.append(flipped(trace) or trace)
+        big = trace.tube_like and trace.half_width * trace.length * 2.0 >= min_area_px and len(trace.path) >= 2
+        return trace if big else None
+
+    walked = [t for t in (kept(walks[ends[index]]) for index in started) if t is not None]
+    turned = [other for t in walked if (other := flipped(t)) is not None]
+    turned += [flipped(t) or t for t in (kept(path) for path in joined) if t is not None]
     return walked, turned
 
 
