@@ -192,8 +192,12 @@ def _point_covariances(knots, control, covariance, us):
 
 _NO_VECTOR = (0.0, 0.0, 0.0)
 
+# The per-edge steps (``_tangent_plane``, ``_edge_residual``, ``_axis_at``) are inlined where they are
+# called: left as calls, the fit's loop over a frame's ~500 edges spent about half its time in them
+# (cost alone 105 -> 52 us, with the normal equations 205 -> 146 us; the same numbers bit for bit).
 
-@numba.njit(cache=True, nogil=True)
+
+@numba.njit(cache=True, nogil=True, inline="always")
 def _tangent_plane(C, D, r, sign):
     """The plane through the camera centre that touches the tube on side ``sign``, and the steps to it.
 
@@ -226,7 +230,7 @@ def _tangent_plane(C, D, r, sign):
     return True, tn, (T0, T1, T2), mn, (m0, m1, m2), ct, d, (e0, e1, e2), rho, a, n
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, inline="always")
 def _edge_residual(C, D, r, x, y, sign):
     """Distance (normalised image units) from (x, y) to the silhouette line on side ``sign``: the line
     in which the tangent plane (``_tangent_plane``) meets the image."""
@@ -479,7 +483,7 @@ def _residual_of(kind, C, D, r, x, y, extra):
     return _end_residual(C, D, r, x, y, extra)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, inline="always")
 def _axis_at(control, first, values, deriv, shift_x, C, D):
     """The axis point C and its derivative D from one observation's basis (into C, D), in the frame of
     the camera ``shift_x`` metres along x from the left one (the right camera: the baseline)."""
@@ -549,6 +553,8 @@ def _normal_equations(bases, control, radii, bins, baseline, focal, kinds, sides
             res, piece = _cap_residual_piece(C, D, r, xs[i], ys[i], extras[i])
         elif kinds[i] == 0 and want_system:  # an edge's residual comes with its partials
             res, gr = _edge_residual_gradient(C, D, r, xs[i], ys[i], extras[i], gC, gD)
+        elif kinds[i] == 0:  # directly, not through ``_residual_of``: that call is not inlined, and cost as much
+            res = _edge_residual(C, D, r, xs[i], ys[i], extras[i])
         else:
             res = _residual_of(kinds[i], C, D, r, xs[i], ys[i], extras[i])
         if res != res:
