@@ -110,6 +110,12 @@ MAX_TIP_ALONG_STD_M = 0.010
 AWAY_TIP_COSINE = 0.95  # cos 18 degrees, between the tip's direction and the line of sight to it
 MAX_AWAY_TIP_ALONG_STD_M = 0.006
 TIP_DIRECTION_M = 0.02  # the tip's direction is taken over this much of the arm
+# A fitted tip that kinks at its end has bent to fit its outline, not followed the arm. On unseen
+# scenes (tests/scenes.py, seeds 114-125 and 138-149, 1,355 valid frames) the turn between the last
+# two TIP_DIRECTION_M of the fitted axis was under 5 degrees in 99 % of frames; the five over 15
+# degrees (a tip pointing towards the cameras, its face seen, the fit ending it short and bent
+# aside) were all 8.4-17.6 mm off at the tip. An arm curved at 5 /m turns 6 degrees there.
+MAX_TIP_TURN_DEG = 15.0
 # The tip's standard deviation assumes its outline fits as well as the edges do. An outline the
 # fitted end misses by more than TIP_OUTLINE_NOISE_PX RMS (tips within 10 mm: median 0.12 px, nine
 # in ten under 0.4 px; false valid ones: median 0.45 px) has pulled the tip where it does not quite
@@ -1161,6 +1167,11 @@ class CenterlineEstimator:
         if along > MAX_AWAY_TIP_ALONG_STD_M and _away_cosine(axis, arc, self._rect.baseline_m) > AWAY_TIP_COSINE:
             self._untrusted_end = (f"where the tip ends is uncertain: {along * 1e3:.1f} mm standard deviation along "
                                    "the arm (it points away from the camera, its end behind itself)")
+        turn = _tip_turn_deg(axis, arc)
+        if turn > MAX_TIP_TURN_DEG:
+            self._untrusted_end = (f"where the tip ends is uncertain: the fitted tube turns {turn:.0f} degrees over "
+                                   f"its last {2 * TIP_DIRECTION_M * 1e3:.0f} mm (over {MAX_TIP_TURN_DEG:g}), bent "
+                                   "to its end's outline rather than following the arm")
         self._last_fit = fit
         source = (f"measured over {self._radius_frames} frames" if self._radius_frames else "configured")
         self._tube_extras = (measured, std, radius, source)
@@ -1744,6 +1755,17 @@ def _away_cosine(axis: np.ndarray, arc: np.ndarray, baseline_m: float) -> float:
     sight = axis[-1] - np.array([0.5 * baseline_m, 0.0, 0.0])
     norm = float(np.linalg.norm(direction) * np.linalg.norm(sight))
     return float(direction @ sight / norm) if norm > 0 else 0.0
+
+
+def _tip_turn_deg(axis: np.ndarray, arc: np.ndarray) -> float:
+    """The angle (degrees) between the axis's directions over its last two ``TIP_DIRECTION_M`` of arc."""
+    def direction(back_from: float, back_to: float) -> np.ndarray:
+        i = int(np.searchsorted(arc, arc[-1] - back_from))
+        j = min(int(np.searchsorted(arc, arc[-1] - back_to)), len(axis) - 1)
+        v = axis[j] - axis[min(i, j - 1)]
+        return v / max(float(np.linalg.norm(v)), 1e-12)
+    cosine = float(direction(2.0 * TIP_DIRECTION_M, TIP_DIRECTION_M) @ direction(TIP_DIRECTION_M, 0.0))
+    return math.degrees(math.acos(min(1.0, max(-1.0, cosine))))
 
 
 def _outline_inliers(residuals_px: np.ndarray | None, count: int, sigma_px: float) -> np.ndarray | None:
