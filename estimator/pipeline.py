@@ -1168,7 +1168,7 @@ class CenterlineEstimator:
             self._untrusted_end = (f"where the tip ends is uncertain: {along * 1e3:.1f} mm standard deviation along "
                                    "the arm (it points away from the camera, its end behind itself)")
         turn = _tip_turn_deg(axis, arc)
-        if turn > MAX_TIP_TURN_DEG:
+        if turn > MAX_TIP_TURN_DEG and not self._untrusted_end:  # a reason above says more where it holds
             self._untrusted_end = (f"where the tip ends is uncertain: the fitted tube turns {turn:.0f} degrees over "
                                    f"its last {2 * TIP_DIRECTION_M * 1e3:.0f} mm (over {MAX_TIP_TURN_DEG:g}), bent "
                                    "to its end's outline rather than following the arm")
