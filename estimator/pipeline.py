@@ -1747,24 +1747,27 @@ def _tip_std_with_misfit(std_m: float, tip_residual_px: dict) -> tuple[float, fl
     return std_m * max(1.0, misfit / TIP_OUTLINE_NOISE_PX), misfit, image
 
 
+def _arc_direction(axis: np.ndarray, arc: np.ndarray, back_from: float, back_to: float) -> np.ndarray:
+    """Unit direction of the axis between ``back_from`` and ``back_to`` metres of arc before its end
+    (zero if those meet one sample): the tip's heading for the refusal rules below."""
+    i = int(np.searchsorted(arc, arc[-1] - back_from))
+    j = min(int(np.searchsorted(arc, arc[-1] - back_to)), len(axis) - 1)
+    v = axis[j] - axis[min(i, j - 1)]
+    return v / max(float(np.linalg.norm(v)), 1e-12)
+
+
 def _away_cosine(axis: np.ndarray, arc: np.ndarray, baseline_m: float) -> float:
     """Cosine between the tip's direction (over its last ``TIP_DIRECTION_M`` of arc) and the line of
     sight to the tip from midway between the cameras; 1 points straight away from them."""
-    back = int(np.searchsorted(arc, arc[-1] - TIP_DIRECTION_M))
-    direction = axis[-1] - axis[min(back, len(axis) - 2)]
     sight = axis[-1] - np.array([0.5 * baseline_m, 0.0, 0.0])
-    norm = float(np.linalg.norm(direction) * np.linalg.norm(sight))
-    return float(direction @ sight / norm) if norm > 0 else 0.0
+    norm = float(np.linalg.norm(sight))
+    return float(_arc_direction(axis, arc, TIP_DIRECTION_M, 0.0) @ sight / norm) if norm > 0 else 0.0
 
 
 def _tip_turn_deg(axis: np.ndarray, arc: np.ndarray) -> float:
     """The angle (degrees) between the axis's directions over its last two ``TIP_DIRECTION_M`` of arc."""
-    def direction(back_from: float, back_to: float) -> np.ndarray:
-        i = int(np.searchsorted(arc, arc[-1] - back_from))
-        j = min(int(np.searchsorted(arc, arc[-1] - back_to)), len(axis) - 1)
-        v = axis[j] - axis[min(i, j - 1)]
-        return v / max(float(np.linalg.norm(v)), 1e-12)
-    cosine = float(direction(2.0 * TIP_DIRECTION_M, TIP_DIRECTION_M) @ direction(TIP_DIRECTION_M, 0.0))
+    cosine = float(_arc_direction(axis, arc, 2.0 * TIP_DIRECTION_M, TIP_DIRECTION_M)
+                   @ _arc_direction(axis, arc, TIP_DIRECTION_M, 0.0))
     return math.degrees(math.acos(min(1.0, max(-1.0, cosine))))
 
 
