@@ -1093,11 +1093,6 @@ class CenterlineEstimator:
         us = np.linspace(0.0, 1.0, 241)
         axis = fit.points(us)
         arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(axis, axis=0), axis=1))])
-        fold, where = _largest_inner_turn(axis, arc)
-        if fold > MAX_AXIS_TURN_DEG:
-            raise _NoArmError(f"the fitted tube folds: it turns {fold:.0f} degrees over "
-                              f"{2 * TIP_DIRECTION_M * 1e3:.0f} mm at {where * 1e3:.0f} mm from its base "
-                              f"(over {MAX_AXIS_TURN_DEG:g}; an arm bends smoothly)")
         at = np.interp(np.linspace(0.0, arc[-1], cfg.n_points), arc, us)
         points = fit.points(at)
         self._check_length(points)
@@ -1184,6 +1179,13 @@ class CenterlineEstimator:
             self._untrusted_end = (f"where the tip ends is uncertain: the fitted tube turns {turn:.0f} degrees over "
                                    f"its last {2 * TIP_DIRECTION_M * 1e3:.0f} mm (over {MAX_TIP_TURN_DEG:g}), bent "
                                    "to its end's outline rather than following the arm")
+        # Checked last: a tube longer than the arm is cut back first (something past its tip), and a
+        # frame refused above for a reason of its own keeps it, tracked on.
+        fold, where = _largest_inner_turn(axis, arc)
+        if fold > MAX_AXIS_TURN_DEG and not self._untrusted_end:
+            raise _NoArmError(f"the fitted tube folds: it turns {fold:.0f} degrees over "
+                              f"{2 * TIP_DIRECTION_M * 1e3:.0f} mm at {where * 1e3:.0f} mm from its base "
+                              f"(over {MAX_AXIS_TURN_DEG:g}; an arm bends smoothly)")
         self._last_fit = fit
         source = (f"measured over {self._radius_frames} frames" if self._radius_frames else "configured")
         self._tube_extras = (measured, std, radius, source)
