@@ -20,7 +20,10 @@ random planes, a twist in the last, its base 0.75-1.5 m from the camera), seen i
 
 Every condition is tracked from its first frame with the default ``EstimatorConfig()``. Prints, per
 condition, the valid frames, those valid while more than 10 mm off (largest point or tip error, the
-studies' false valid), the RMSE of the valid frames and each false valid frame. Seeded: the same
+studies' false valid), the RMSE of the valid frames and each false valid frame. Some random arms
+bend out of the picture: the valid frames are also counted among the frames whose whole tube lies
+inside both images (``_in_view``), where a frame can be valid at all, so that the estimator's
+refusals are told apart from the scene's. Seeded: the same
 arguments draw the same scenes. Runs from a checkout (it reads tests/scenes.py beside it).
 """
 
@@ -41,6 +44,7 @@ SECTIONS_M = (0.235, 0.23, 0.22)
 CONDITIONS = ("lab", "dim", "warm", "blur", "occluded", "hand")
 HAND_FROM = 4  # the hand comes in once the arm is tracked
 FALSE_VALID_MM = 10.0
+TUBE_RADIUS_M = 0.025  # tests/scenes.py's tube
 
 
 @functools.cache
@@ -109,8 +113,22 @@ def _sequence(seed: int, frames: int, upto: int | None = None,
     return out
 
 
-def _run_sequence(args: tuple[int, int]) -> list[tuple[str, int, int, bool, float, float, str]]:
-    """Draw one sequence and track every condition: (condition, seed, frame, valid, rmse mm, worst mm, reason)."""
+def _in_view(calib, points: np.ndarray, radius_m: float = TUBE_RADIUS_M) -> bool:
+    """Whether the tube round this backbone (left camera frame) lies wholly inside both raw images:
+    each backbone point with its projected radius (at its depth) inside the picture."""
+    width, height = calib.image_size
+    for side in ("left", "right"):
+        uv = calib.project(points, side)
+        reach = calib.K(side)[0, 0] * radius_m / points[:, 2]
+        if np.any((uv[:, 0] - reach < 0) | (uv[:, 0] + reach > width - 1)
+                  | (uv[:, 1] - reach < 0) | (uv[:, 1] + reach > height - 1)):
+            return False
+    return True
+
+
+def _run_sequence(args: tuple[int, int]) -> list[tuple[str, int, int, bool, float, float, str, bool]]:
+    """Draw one sequence and track every condition: (condition, seed, frame, valid, rmse mm, worst mm,
+    reason, whether the whole tube is in view)."""
     from estimator import CenterlineEstimator, EstimatorConfig
     from estimator.metrics import score_against_backbone
 
@@ -121,12 +139,13 @@ def _run_sequence(args: tuple[int, int]) -> list[tuple[str, int, int, bool, floa
         estimator = CenterlineEstimator(calib, EstimatorConfig())
         for f, (left, right, truth) in enumerate(sequence):
             result = estimator.estimate(left, right)
+            seen = _in_view(calib, truth)
             if result.valid:
                 score = score_against_backbone(result.points, truth)
                 worst = max(score["max_mm"], score.get("tip_mm", 0.0))
-                rows.append((name, seed, f, True, score["rmse_mm"], worst, ""))
+                rows.append((name, seed, f, True, score["rmse_mm"], worst, "", seen))
             else:
-                rows.append((name, seed, f, False, math.nan, math.nan, result.reason))
+                rows.append((name, seed, f, False, math.nan, math.nan, result.reason, seen))
     return rows
 
 
@@ -136,9 +155,9 @@ def _write_rows(path: Path, rows: list[tuple]) -> None:
 
     with path.open("w", newline="") as f:
         writer = csv.writer(f)
-        writer.writerow(["condition", "seed", "frame", "valid", "rmse_mm", "worst_mm", "reason"])
-        for name, seed, frame, valid, rmse, worst, reason in rows:
-            writer.writerow([name, seed, frame, int(valid), f"{rmse:.3f}", f"{worst:.3f}", reason])
+        writer.writerow(["condition", "seed", "frame", "valid", "rmse_mm", "worst_mm", "reason", "in_view"])
+        for name, seed, frame, valid, rmse, worst, reason, seen in rows:
+            writer.writerow([name, seed, frame, int(valid), f"{rmse:.3f}", f"{worst:.3f}", reason, int(seen)])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -148,7 +167,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--first-seed", type=int, default=10, help="seed of the first sequence (default 10)")
     parser.add_argument("--workers", type=int, default=2, help="sequences drawn and tracked at once (default 2)")
     parser.add_argument("--rows", type=Path, help="write every frame's outcome here (CSV: condition, seed, frame, "
-                        "valid, rmse_mm, worst_mm, reason), to see what the refusals are")
+                        "valid, rmse_mm, worst_mm, reason, in_view), to see what the refusals are")
     args = parser.parse_args(argv)
     jobs = [(args.first_seed + k, args.frames) for k in range(args.sequences)]
     with ProcessPoolExecutor(max_workers=args.workers) as pool:
@@ -157,17 +176,25 @@ def main(argv: list[str] | None = None) -> int:
         _write_rows(args.rows, rows)
     print(f"Unseen lab scenes (tests/scenes.py): {args.sequences} sequences x {args.frames} frames, seeds "
           f"{args.first_seed}-{args.first_seed + args.sequences - 1}, default EstimatorConfig(), tracked\n")
-    print(f"{'condition':<10} {'valid':>9} {'false valid':>12} {'RMSE mm':>8}")
+    print(f"{'condition':<10} {'valid':>9} {'of in view':>16} {'false valid':>12} {'RMSE mm':>8}")
     for name in CONDITIONS:
         mine = [r for r in rows if r[0] == name]
         valid = [r for r in mine if r[3]]
+        seen = [r for r in mine if r[7]]
+        valid_seen = [r for r in seen if r[3]]
         wrong = [r for r in valid if r[5] > FALSE_VALID_MM]
         rmse = math.sqrt(sum(r[4] ** 2 for r in valid) / len(valid)) if valid else math.nan
-        print(f"{name:<10} {len(valid):>4}/{len(mine):<4} {len(wrong):>12} {rmse:>8.2f}")
+        share = f"{len(valid_seen)}/{len(seen)} ({len(valid_seen) / max(len(seen), 1):.0%})"
+        print(f"{name:<10} {len(valid):>4}/{len(mine):<4} {share:>16} {len(wrong):>12} {rmse:>8.2f}")
+    outside = sum(1 for r in rows if r[0] == CONDITIONS[0] and not r[7])
+    print(f"\n{outside} of the {len(rows) // len(CONDITIONS)} poses run partly out of view (same in every condition)")
+    beyond = [r for r in rows if r[3] and not r[7]]
+    if beyond:
+        print(f"{len(beyond)} valid frame(s) with part of the tube out of view")
     wrong = [r for r in rows if r[3] and r[5] > FALSE_VALID_MM]
     if wrong:
         print("\nValid while more than 10 mm off:")
-        for name, seed, f, _, rmse, worst, _ in wrong:
+        for name, seed, f, _, rmse, worst, _, _ in wrong:
             print(f"  {name:<9} seed {seed:>3} frame {f:>2}: RMSE {rmse:.2f} mm, worst {worst:.1f} mm")
     return 0
 

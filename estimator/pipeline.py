@@ -598,6 +598,21 @@ class CenterlineEstimator:
                 raise _OutOfViewError(f"the {name} is out of view in the {side} image: the arm runs on past the "
                                       "image's edge there")
 
+    def _base_now(self) -> np.ndarray | None:
+        """Where the arm's base is in the rectified left image, to start an untracked chain from: the
+        configured ``base_pixel``, else (default mode) the base end of the last frame's chain, else
+        None (the end nearest the top edge, as the paper's setting has it).
+
+        The base does not move while the tip swings. An arm that curls up past its base (the tip
+        above it in the image) was started from its tip by the top edge rule whenever tracking
+        let go: tip and base swapped, every point on the arm, valid with the tip 560 mm off.
+        """
+        if self._base_hint is not None:
+            return self._base_hint
+        if self._warm["left"] is None or self.config.mode != "default":
+            return None
+        return self._warm["left"][0]
+
     def _trace(self, mask: np.ndarray, samples: np.ndarray, offset: np.ndarray, side: str,
                warm: np.ndarray | None, timings: dict,
                started_over: list | None = None) -> tuple[np.ndarray, Centerline2D | None, float]:
@@ -608,7 +623,8 @@ class CenterlineEstimator:
         traced cold instead."""
         cfg = self.config
         with _timed(timings, "centerline"):
-            hint = self._base_hint - offset if (side == "left" and self._base_hint is not None) else None
+            base = self._base_now()
+            hint = base - offset if (side == "left" and base is not None) else None
             nodes = centerline_nodes(mask, samples, cfg, warm=None if warm is None else warm - offset, base_hint=hint)
             # A chain started from the last frame may not follow a fast swing to its end: if arm
             # pixels lie far from it, start this image over from its skeleton.
@@ -702,7 +718,7 @@ class CenterlineEstimator:
             gate = {side: remove_small_regions(per_side[side][1], min_area) for side in SIDES}
             geometry = TubeGeometry(self._rect.focal_px / self._scale, self._rect.baseline_m, cfg.arm_radius_m,
                                     cfg.arm_length_m,
-                                    None if self._base_hint is None else tuple(self._base_hint / self._scale))
+                                    None if self._base_now() is None else tuple(self._base_now() / self._scale))
             keep, why = find_tube(gate, geometry, min_area)
             if keep is None and self._colour.active:  # the model may have learned the wrong colours
                 self._colour.reset()

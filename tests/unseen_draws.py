@@ -35,12 +35,13 @@ def unseen_calibration():
     return _benchmark()._scenes().zed_like_calibration()
 
 
-def tracked(seed: int, condition: str, upto: int):
-    """A default estimator run over frames 0..``upto`` of one sequence: (estimator, [(result, truth)])."""
+def tracked(seed: int, condition: str, upto: int, frames: int = 12):
+    """A default estimator run over frames 0..``upto`` of one sequence (``frames`` long, as the
+    benchmark's ``--frames``): (estimator, [(result, truth)])."""
     from estimator import CenterlineEstimator
 
     estimator = CenterlineEstimator(unseen_calibration())
-    frames = unseen_frames(seed, condition, upto)
+    frames = unseen_frames(seed, condition, upto, frames)
     return estimator, [(estimator.estimate(left, right), truth) for left, right, truth in frames]
 
 
