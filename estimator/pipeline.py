@@ -716,9 +716,9 @@ class CenterlineEstimator:
 
         if keep is None:
             gate = {side: remove_small_regions(per_side[side][1], min_area) for side in SIDES}
+            base = self._base_now()
             geometry = TubeGeometry(self._rect.focal_px / self._scale, self._rect.baseline_m, cfg.arm_radius_m,
-                                    cfg.arm_length_m,
-                                    None if self._base_now() is None else tuple(self._base_now() / self._scale))
+                                    cfg.arm_length_m, None if base is None else tuple(base / self._scale))
             keep, why = find_tube(gate, geometry, min_area)
             if keep is None and self._colour.active:  # the model may have learned the wrong colours
                 self._colour.reset()

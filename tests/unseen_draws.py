@@ -41,8 +41,8 @@ def tracked(seed: int, condition: str, upto: int, frames: int = 12):
     from estimator import CenterlineEstimator
 
     estimator = CenterlineEstimator(unseen_calibration())
-    frames = unseen_frames(seed, condition, upto, frames)
-    return estimator, [(estimator.estimate(left, right), truth) for left, right, truth in frames]
+    drawn = unseen_frames(seed, condition, upto, frames)
+    return estimator, [(estimator.estimate(left, right), truth) for left, right, truth in drawn]
 
 
 def worst_mm(result, truth: np.ndarray) -> float:
